@@ -1,0 +1,3 @@
+from frontdiag.cli import run
+
+run()

@@ -1,0 +1,70 @@
+"""One exception root for everything frontdiag reports to a user.
+
+Library code raises these; only the CLI turns them into a one-line message and an exit code.
+Each error builds its own message so callers never format user-facing text by hand.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+# Exit codes, documented in the README and in `frontdiag --help`.
+EXIT_OK = 0
+EXIT_GATE = 1
+EXIT_INPUT = 2
+EXIT_INTERNAL = 3
+EXIT_INTERRUPTED = 130
+
+
+class FrontdiagError(Exception):
+    """Root of every error that is the user's input rather than a bug (exit code 2)."""
+
+    exit_code = EXIT_INPUT
+    hint: str | None = None
+
+    def __init__(self, message: str, *, hint: str | None = None) -> None:
+        super().__init__(message)
+        if hint is not None:
+            self.hint = hint
+
+
+class RecordingError(FrontdiagError):
+    """A recording is missing, unreadable, truncated or of an unknown container."""
+
+    def __init__(self, path: Path | str, problem: str, *, hint: str | None = None) -> None:
+        self.path = Path(path)
+        super().__init__(f"{path}: {problem}", hint=hint)
+
+
+class TopicError(FrontdiagError):
+    """A requested topic is absent, or the choice of topic is ambiguous."""
+
+    def __init__(self, message: str, *, candidates: list[str] | None = None,
+                 hint: str | None = None) -> None:
+        self.candidates = candidates or []
+        super().__init__(message, hint=hint)
+
+
+class DecodeError(FrontdiagError):
+    """One message could not be decoded. The reader skips and counts these."""
+
+    def __init__(self, topic: str, field: str, problem: str) -> None:
+        self.topic = topic
+        self.field = field
+        super().__init__(f"topic {topic}: field {field}: {problem}")
+
+
+class ConfigError(FrontdiagError):
+    """Invalid option, intrinsics, override file or target file."""
+
+
+class RuleError(FrontdiagError):
+    """A rules file is invalid: unknown metric, operator, check or condition."""
+
+    def __init__(self, source: Path | str, problem: str) -> None:
+        self.source = str(source)
+        super().__init__(f"{source}: {problem}")
+
+
+class OptionalDependencyError(FrontdiagError):
+    """An optional heavy dependency (e.g. Open3D) is not installed or cannot load."""

@@ -1,0 +1,114 @@
+"""Every per-frame column, declared once: name, unit, sensor, meaning, which way is better.
+
+The rules engine validates rule files against this catalogue; the README's column table and
+`frontdiag explain` read it too. Units live in the names (`_deg`, `_ms`, `_m`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+Better = Literal["higher", "lower", "none"]
+
+
+@dataclass(frozen=True)
+class Metric:
+    name: str
+    unit: str
+    sensor: Literal["camera", "lidar", "any"]
+    meaning: str
+    better: Better = "none"
+
+
+_M = Metric
+METRICS: dict[str, Metric] = {m.name: m for m in [
+    _M("frame", "", "any", "index of the message on its topic (before --stride/--start selection)"),
+    _M("t_ns", "ns", "any", "header stamp (log time when the stamp is zero)"),
+    _M("t_rel_s", "s", "any", "seconds since the first message of the recording"),
+    _M("sensor", "", "any", "camera or lidar"),
+    _M("topic", "", "any", "topic the row was computed from"),
+    _M("status", "", "any", "ok, or why the frame could not be evaluated"),
+    # --- camera: detection
+    _M("n_keypoints", "count", "camera", "ORB keypoints detected", "higher"),
+    _M("entropy_norm", "ratio", "camera",
+       "keypoint spatial entropy over an 8x6 grid divided by log2(48); >0.74 ok, <0.6 alarm", "higher"),
+    _M("occupied_cells", "count", "camera", "cells of the 8x6 grid holding at least one keypoint", "higher"),
+    # --- camera: matching (against the previous frame)
+    _M("n_putative", "count", "camera", "query features with two candidate neighbours", "higher"),
+    _M("ratio_reject_rate", "ratio", "camera",
+       "share of query features whose best match failed the Lowe ratio test (0.8)", "lower"),
+    _M("n_matches", "count", "camera", "matches passing the ratio test and mutual consistency", "higher"),
+    # --- camera: geometry (against the reference keyframe)
+    _M("ref_frame", "", "camera", "frame index of the reference keyframe"),
+    _M("n_ref_matches", "count", "camera", "correspondences with the reference keyframe", "higher"),
+    _M("inliers_e", "count", "camera", "essential-matrix inliers (USAC_MAGSAC)", "higher"),
+    _M("inliers_h", "count", "camera", "homography inliers on the same correspondences", "none"),
+    _M("h_over_e", "ratio", "camera",
+       "homography inliers / essential inliers; <0.5 general 3D, >0.9 degenerate", "lower"),
+    _M("inlier_ratio", "ratio", "camera", "RANSAC inlier ratio w = inliers_e / correspondences", "higher"),
+    _M("ransac_iters_required", "count", "camera", "N = ln(1-p)/ln(1-w^5) at the measured w", "lower"),
+    _M("ransac_iters_run", "count", "camera", "iterations the estimator actually ran", "none"),
+    _M("parallax_med_deg", "deg", "camera",
+       "median parallax angle of inlier correspondences after de-rotation; 1 deg triangulation gate",
+       "higher"),
+    _M("rot_deg", "deg", "camera", "rotation angle recovered against the reference keyframe"),
+    _M("t_dir_change_deg", "deg", "camera",
+       "change of the recovered translation direction since the previous frame (same reference)"),
+    _M("pose_info_cond", "ratio", "camera",
+       "lambda_max/lambda_min of the pose information matrix J^T J; 20-80 healthy, >3000 clustered",
+       "lower"),
+    # --- camera: photometric
+    _M("mean_intensity", "grey level", "camera", "frame mean intensity (0-255)"),
+    _M("d_mean_intensity", "grey level", "camera",
+       "change of frame mean intensity from the previous frame; >8 is an exposure step"),
+    _M("photo_residual_med", "grey level", "camera",
+       "median |I2 - I1| over 8x8 patches at tracked features; ~4 healthy, 20-25 at a gain step",
+       "lower"),
+    _M("affine_gain", "ratio", "camera", "gain a of r = I2 - (a*I1 + b) fitted at tracked features"),
+    _M("affine_bias", "grey level", "camera", "offset b of the affine brightness model"),
+    _M("photo_residual_affine_med", "grey level", "camera",
+       "median residual after removing the affine brightness model", "lower"),
+    # --- timing
+    _M("ms_decode", "ms", "any", "decode + grey conversion", "lower"),
+    _M("ms_detect", "ms", "camera", "ORB detection + description with bucketing", "lower"),
+    _M("ms_match", "ms", "camera", "Hamming kNN matching, ratio test, mutual check", "lower"),
+    _M("ms_geometry", "ms", "camera", "E and H estimation, recoverPose, parallax, pose information",
+       "lower"),
+    _M("ms_photometric", "ms", "camera", "photometric residual and affine fit", "lower"),
+    _M("ms_total", "ms", "any", "all stages of this frame", "lower"),
+    # --- lidar
+    _M("n_points", "count", "lidar", "finite points in the scan", "higher"),
+    _M("n_points_used", "count", "lidar", "points after voxel downsampling used in registration",
+       "higher"),
+    _M("deskew_m", "m", "lidar", "largest displacement applied by deskewing within the sweep"),
+    _M("icp_fitness", "ratio", "lidar", "share of points with a correspondence inside the threshold",
+       "higher"),
+    _M("icp_rmse_m", "m", "lidar", "RMS of inlier correspondence distances", "lower"),
+    _M("icp_iters", "count", "lidar", "registration iterations", "lower"),
+    _M("lidar_eig_min", "normalised", "lidar",
+       "smallest eigenvalue of the normalised J^T J; ~2400 healthy, ~12 degenerate", "higher"),
+    _M("lidar_cond", "ratio", "lidar", "lambda_max/lambda_min of J^T J; >900 degenerate", "lower"),
+    _M("lidar_weak_dir", "", "lidar", "the weakest eigenvector in words"),
+    _M("ms_lidar_preprocess", "ms", "lidar", "deskew + voxel downsampling", "lower"),
+    _M("ms_lidar_register", "ms", "lidar", "registration + spectrum", "lower"),
+    # --- verdicts (added by the rules engine)
+    _M("conditions", "", "any", "condition names that fired on this row"),
+    _M("rules", "", "any", "rule IDs that fired on this row"),
+    _M("verdict", "", "any", "ok / warn / fail"),
+]}
+
+CAMERA_COLUMNS: tuple[str, ...] = (
+    "frame", "t_ns", "sensor", "topic", "n_keypoints", "entropy_norm", "n_putative",
+    "ratio_reject_rate", "n_matches", "inliers_e", "inliers_h", "h_over_e", "inlier_ratio",
+    "ransac_iters_required", "ransac_iters_run", "parallax_med_deg", "rot_deg", "pose_info_cond",
+    "mean_intensity", "d_mean_intensity", "photo_residual_med", "affine_gain", "ms_decode",
+    "ms_detect", "ms_match", "ms_geometry", "ms_total", "status",
+)
+"""Columns every camera row carries (the contract of the analyze table)."""
+
+LIDAR_COLUMNS: tuple[str, ...] = (
+    "frame", "t_ns", "sensor", "topic", "n_points", "n_points_used", "deskew_m", "icp_fitness",
+    "icp_rmse_m", "icp_iters", "lidar_eig_min", "lidar_cond", "lidar_weak_dir",
+    "ms_lidar_preprocess", "ms_lidar_register", "ms_total", "status",
+)

@@ -1,0 +1,70 @@
+"""Frozen records that cross module boundaries. Timestamps are integer nanoseconds."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole intrinsics plus distortion, from CameraInfo, the command line or a YAML file."""
+
+    K: np.ndarray  # (3, 3) float64
+    D: np.ndarray = field(default_factory=lambda: np.zeros(0))  # distortion coefficients
+    model: str = "plumb_bob"  # plumb_bob | rational_polynomial | equidistant | none
+    width: int = 0
+    height: int = 0
+    source: str = "unknown"  # camera_info topic, --intrinsics, --camera-info FILE
+
+    @property
+    def fx(self) -> float:
+        return float(self.K[0, 0])
+
+    @property
+    def fy(self) -> float:
+        return float(self.K[1, 1])
+
+    @property
+    def cx(self) -> float:
+        return float(self.K[0, 2])
+
+    @property
+    def cy(self) -> float:
+        return float(self.K[1, 2])
+
+    @property
+    def has_distortion(self) -> bool:
+        return self.D.size > 0 and bool(np.any(np.abs(self.D) > 0))
+
+
+@dataclass(frozen=True)
+class CameraFrame:
+    """One decoded camera image, already converted to 8-bit grey."""
+
+    index: int  # position among the messages of this topic (before selection)
+    t_ns: int  # header stamp, or log time when the stamp is zero
+    log_ns: int  # time the recorder logged it
+    topic: str
+    gray: np.ndarray  # (H, W) uint8
+    encoding: str
+    ms_decode: float = 0.0
+
+
+@dataclass(frozen=True)
+class LidarScan:
+    """One decoded LiDAR sweep (PointCloud2 or LaserScan as a planar cloud)."""
+
+    index: int
+    t_ns: int
+    log_ns: int
+    topic: str
+    xyz: np.ndarray  # (N, 3) float64, finite rows only
+    time_rel_s: np.ndarray | None  # (N,) per-point time relative to t_ns, seconds
+    intensity: np.ndarray | None = None
+    ring: np.ndarray | None = None
+    planar: bool = False  # True for LaserScan (2D scanner)
+    frame_id: str = ""
+    n_raw: int = 0  # points before NaN/inf rows were dropped
+    ms_decode: float = 0.0

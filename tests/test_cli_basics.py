@@ -1,0 +1,31 @@
+"""The command line starts, shows help and maps errors to the documented exit codes."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+from frontdiag.cli import main
+
+
+def test_help_lists_commands(capsys) -> None:
+    assert main(["--help"]) == 0
+    out = capsys.readouterr().out
+    assert "frontdiag" in out
+    assert "Exit codes" in out
+
+
+def test_version(capsys) -> None:
+    assert main(["--version"]) == 0
+    assert "frontdiag 0." in capsys.readouterr().out
+
+
+def test_unknown_command_is_usage_error() -> None:
+    assert main(["no-such-command"]) == 2
+
+
+def test_module_entry_point_runs() -> None:
+    proc = subprocess.run([sys.executable, "-m", "frontdiag", "--version"],
+                          capture_output=True, text=True, check=False)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.startswith("frontdiag ")
