@@ -26,3 +26,17 @@ DESCRIPTIONS: dict[str, str] = {
     "ransac_starved": "RANSAC ran fewer iterations than the measured inlier ratio requires",
     "healthy": "none of the failures above",
 }
+
+# Which sensor's rows can show a condition. The scorer evaluates a condition on those rows only,
+# so a LiDAR corridor label is not counted against camera frames recorded in the same interval.
+CONDITION_SENSORS: dict[str, tuple[str, ...]] = {
+    "feature_clustering": ("camera",),
+    "repetitive_structure": ("camera",),
+    "planar_degeneracy": ("camera",),
+    "exposure_step": ("camera",),
+    "pure_rotation": ("camera",),
+    "detection_failure": ("camera",),
+    "ransac_starved": ("camera",),
+    "registration_degeneracy": ("lidar",),
+    "healthy": ("camera", "lidar"),
+}
