@@ -1,0 +1,108 @@
+"""Convert ``sensor_msgs/Image`` and ``CompressedImage`` to 8-bit grey, in one place.
+
+Every frame the frontend sees passes through :func:`to_gray`. Errors name the topic and the
+field at fault and are raised as :class:`~frontdiag.errors.DecodeError`; the caller skips and
+counts a bad single message.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+
+from frontdiag.errors import DecodeError
+
+IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+
+# ROS encoding -> (channels, bytes per channel, cv2 conversion to grey or None)
+_ENCODINGS: dict[str, tuple[int, int, int | None]] = {
+    "mono8": (1, 1, None),
+    "8uc1": (1, 1, None),
+    "mono16": (1, 2, None),
+    "16uc1": (1, 2, None),
+    "rgb8": (3, 1, cv2.COLOR_RGB2GRAY),
+    "bgr8": (3, 1, cv2.COLOR_BGR2GRAY),
+    "8uc3": (3, 1, cv2.COLOR_BGR2GRAY),
+    "rgba8": (4, 1, cv2.COLOR_RGBA2GRAY),
+    "bgra8": (4, 1, cv2.COLOR_BGRA2GRAY),
+    "8uc4": (4, 1, cv2.COLOR_BGRA2GRAY),
+    # ROS names the pattern of the top-left 2x2 block; OpenCV names the second row's
+    # second and third pixels, hence the shift (the same mapping cv_bridge uses).
+    "bayer_rggb8": (1, 1, cv2.COLOR_BayerBG2GRAY),
+    "bayer_bggr8": (1, 1, cv2.COLOR_BayerRG2GRAY),
+    "bayer_gbrg8": (1, 1, cv2.COLOR_BayerGR2GRAY),
+    "bayer_grbg8": (1, 1, cv2.COLOR_BayerGB2GRAY),
+}
+SUPPORTED_ENCODINGS: tuple[str, ...] = tuple(k for k in _ENCODINGS if not k[0].isdigit())
+
+
+@dataclass
+class GrayConverter:
+    """Stateful only for mono16: the bit shift is fixed from the first frame so that frame means
+    stay comparable across the run (a per-frame stretch would hide exposure steps)."""
+
+    topic: str
+    mono16_shift: int | None = None
+    encodings_seen: set[str] = field(default_factory=set)
+
+    def __call__(self, msg: Any, msgtype: str) -> tuple[np.ndarray, str]:
+        if msgtype.endswith("CompressedImage"):
+            return self._compressed(msg), f"compressed/{str(msg.format).strip() or '?'}"
+        return self._raw(msg), str(msg.encoding)
+
+    def _compressed(self, msg: Any) -> np.ndarray:
+        buf = np.asarray(msg.data, dtype=np.uint8)
+        if buf.size == 0:
+            raise DecodeError(self.topic, "data", "empty compressed image")
+        img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+        if img is None:
+            raise DecodeError(self.topic, "data",
+                              f"cannot decode compressed image (format {msg.format!r})")
+        if img.dtype == np.uint16:
+            img = self._mono16_to_8(img)
+        if img.ndim == 3:
+            code = cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY
+            img = cv2.cvtColor(img, code)
+        return img
+
+    def _raw(self, msg: Any) -> np.ndarray:
+        enc = str(msg.encoding).strip().lower()
+        spec = _ENCODINGS.get(enc)
+        if spec is None:
+            raise DecodeError(self.topic, "encoding",
+                              f"unsupported encoding {msg.encoding!r} (supported: "
+                              f"{', '.join(SUPPORTED_ENCODINGS)})")
+        channels, depth, code = spec
+        h, w, step = int(msg.height), int(msg.width), int(msg.step)
+        if h <= 0 or w <= 0:
+            raise DecodeError(self.topic, "height/width", f"image is {w}x{h}")
+        row_bytes = w * channels * depth
+        if step < row_bytes:
+            raise DecodeError(self.topic, "step",
+                              f"step {step} is smaller than width*channels*bytes = {row_bytes} "
+                              f"for {w}x{h} {enc}")
+        data = np.asarray(msg.data, dtype=np.uint8)
+        if data.size < step * h:
+            raise DecodeError(self.topic, "data",
+                              f"{data.size} bytes, expected step*height = {step * h} for "
+                              f"{w}x{h} {enc}")
+        rows = data[: step * h].reshape(h, step)[:, :row_bytes]
+        if depth == 2:
+            dt = np.dtype(">u2") if int(msg.is_bigendian) else np.dtype("<u2")
+            img16 = np.ascontiguousarray(rows).view(dt).reshape(h, w).astype(np.uint16)
+            return self._mono16_to_8(img16)
+        img = rows.reshape(h, w, channels) if channels > 1 else rows
+        img = np.ascontiguousarray(img)
+        if code is not None:
+            img = cv2.cvtColor(img, code)
+        return img
+
+    def _mono16_to_8(self, img16: np.ndarray) -> np.ndarray:
+        if self.mono16_shift is None:
+            peak = int(img16.max()) if img16.size else 0
+            bits = max(peak.bit_length(), 8)
+            self.mono16_shift = bits - 8
+        return (img16 >> self.mono16_shift).clip(0, 255).astype(np.uint8)

@@ -1,0 +1,401 @@
+"""One registry of recording readers, one protocol, integer-nanosecond timestamps.
+
+Two backends sit behind :func:`open_recording`:
+
+* ``rosbags`` (``AnyReader``): ROS 1 bags (a file, several files, or a folder of split bags),
+  ROS 2 bag folders with sqlite3 or MCAP storage, and standalone ``.db3`` files.
+* ``mcap`` (the ``mcap`` package): standalone MCAP files in ROS 2 (``cdr``) or ROS 1 encoding,
+  including files written outside ROS. It also reads MCAP files whose summary section is missing
+  (a recorder that was killed), streaming records until the damage.
+
+Which backend takes a standalone ROS 2 MCAP file was decided by measurement
+(``benchmarks/bench_readers.py``); see :data:`MCAP_BACKEND`.
+
+Messages are returned raw (bytes) and deserialised on demand into rosbags message objects, so
+decoders see the same object shape whatever the container.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import TracebackType
+from typing import Any, Protocol
+
+from frontdiag.errors import RecordingError
+from frontdiag.io.writer import normalise_msgtype, typestore
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class TopicInfo:
+    topic: str
+    msgtype: str  # normalised: pkg/msg/Type
+    count: int | None  # None when the container does not say (damaged MCAP)
+    encoding: str = ""  # cdr | ros1
+
+
+@dataclass(frozen=True)
+class RawMessage:
+    topic: str
+    msgtype: str
+    log_ns: int
+    data: bytes | memoryview
+    key: Any = None  # backend handle used by deserialize()
+
+
+@dataclass
+class ReadFault:
+    """Damage found while streaming: messages before it were delivered."""
+
+    message: str
+    after_messages: int
+
+
+class Recording(Protocol):
+    path: Path
+    backend: str
+    fault: ReadFault | None
+
+    @property
+    def topics(self) -> list[TopicInfo]: ...
+
+    @property
+    def start_ns(self) -> int | None: ...
+
+    @property
+    def end_ns(self) -> int | None: ...
+
+    def messages(self, topics: Iterable[str], start_ns: int | None = None,
+                 end_ns: int | None = None) -> Iterator[RawMessage]: ...
+
+    def deserialize(self, raw: RawMessage) -> Any: ...
+
+    def close(self) -> None: ...
+
+    def __enter__(self) -> Recording: ...
+
+    def __exit__(self, *exc: object) -> None: ...
+
+
+class _Base:
+    path: Path
+    fault: ReadFault | None = None
+
+    def __enter__(self) -> Any:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+    def close(self) -> None:  # pragma: no cover - overridden
+        pass
+
+
+# --------------------------------------------------------------------------------------------
+# rosbags backend
+# --------------------------------------------------------------------------------------------
+
+class RosbagsRecording(_Base):
+    backend = "rosbags"
+
+    def __init__(self, path: Path, files: Sequence[Path]) -> None:
+        from rosbags.highlevel import AnyReader
+
+        self.path = path
+        self.fault = None
+        self._encoding = "ros1" if files and files[0].suffix == ".bag" else "cdr"
+        try:
+            self._reader = AnyReader(list(files), default_typestore=typestore(2))
+            self._reader.open()
+        except Exception as exc:  # rosbags raises several unrelated types for damage
+            raise RecordingError(path, f"cannot open recording ({_short(exc)})",
+                                 hint=_damage_hint(path)) from exc
+        self._conns_by_topic: dict[str, list[Any]] = {}
+        for conn in self._reader.connections:
+            self._conns_by_topic.setdefault(conn.topic, []).append(conn)
+
+    @property
+    def topics(self) -> list[TopicInfo]:
+        out = []
+        for topic, conns in self._conns_by_topic.items():
+            count = sum(int(c.msgcount) for c in conns)
+            out.append(TopicInfo(topic, normalise_msgtype(conns[0].msgtype), count,
+                                 self._encoding))
+        return out
+
+    @property
+    def start_ns(self) -> int | None:
+        t = self._reader.start_time
+        return int(t) if t and t < 2**63 - 1 else None
+
+    @property
+    def end_ns(self) -> int | None:
+        t = self._reader.end_time  # rosbags reports one past the last message
+        return int(t) - 1 if t else None
+
+    def messages(self, topics: Iterable[str], start_ns: int | None = None,
+                 end_ns: int | None = None) -> Iterator[RawMessage]:
+        wanted = set(topics)
+        conns = [c for t in wanted for c in self._conns_by_topic.get(t, [])]
+        if not conns:
+            return
+        n = 0
+        stop = None if end_ns is None else end_ns + 1  # rosbags' stop is exclusive
+        try:
+            for conn, t_ns, data in self._reader.messages(connections=conns, start=start_ns,
+                                                           stop=stop):
+                n += 1
+                yield RawMessage(conn.topic, normalise_msgtype(conn.msgtype), int(t_ns), data,
+                                 conn)
+        except Exception as exc:
+            self.fault = ReadFault(f"{self.path}: damaged after {n} messages ({_short(exc)})", n)
+            log.warning("%s", self.fault.message)
+
+    def deserialize(self, raw: RawMessage) -> Any:
+        return self._reader.deserialize(raw.data, raw.key.msgtype)
+
+    def close(self) -> None:
+        try:
+            self._reader.close()
+        except Exception:  # pragma: no cover - closing a damaged reader
+            log.debug("error while closing %s", self.path, exc_info=True)
+
+
+# --------------------------------------------------------------------------------------------
+# mcap backend
+# --------------------------------------------------------------------------------------------
+
+class McapRecording(_Base):
+    backend = "mcap"
+
+    def __init__(self, path: Path) -> None:
+        from mcap.reader import make_reader
+
+        self.path = path
+        self.fault = None
+        try:
+            self._fh = open(path, "rb")  # noqa: SIM115 - closed in close()
+            self._reader = make_reader(self._fh)
+            self._header = self._reader.get_header()
+        except Exception as exc:
+            self.close()
+            raise RecordingError(path, f"not a readable MCAP file ({_short(exc)})",
+                                 hint="check that the file is MCAP (magic bytes \\x89MCAP0)") from exc
+        self._summary: Any = None
+        try:
+            self._summary = self._reader.get_summary()
+        except Exception:
+            self._summary = None
+        if self._summary is None:
+            log.warning("%s has no summary section (recording cut short?); streaming it", path)
+        self._schema_cache: dict[int, tuple[str, int, Any]] = {}
+        self._channels: dict[str, tuple[str, str]] = {}  # topic -> (msgtype, encoding)
+        self._counts: dict[str, int] = {}
+        self._start: int | None = None
+        self._end: int | None = None
+        self._scan_channels()
+
+    @property
+    def profile(self) -> str:
+        return str(getattr(self._header, "profile", ""))
+
+    def _scan_channels(self) -> None:
+        if self._summary is not None:
+            schemas = self._summary.schemas
+            stats = self._summary.statistics
+            counts = dict(stats.channel_message_counts) if stats else {}
+            for cid, ch in self._summary.channels.items():
+                schema = schemas.get(ch.schema_id)
+                name = schema.name if schema else ""
+                self._channels[ch.topic] = (normalise_msgtype(name), ch.message_encoding)
+                self._counts[ch.topic] = self._counts.get(ch.topic, 0) + int(counts.get(cid, 0))
+            if stats and stats.message_count:
+                self._start, self._end = int(stats.message_start_time), int(stats.message_end_time)
+            return
+        # No summary: one streaming pass to learn channels, counts and the time span.
+        from mcap.reader import NonSeekingReader
+
+        self._fh.seek(0)
+        n = 0
+        try:
+            for schema, ch, msg in NonSeekingReader(self._fh).iter_messages(log_time_order=False):
+                name = schema.name if schema else ""
+                self._channels.setdefault(ch.topic, (normalise_msgtype(name), ch.message_encoding))
+                self._counts[ch.topic] = self._counts.get(ch.topic, 0) + 1
+                t = int(msg.log_time)
+                self._start = t if self._start is None else min(self._start, t)
+                self._end = t if self._end is None else max(self._end, t)
+                n += 1
+        except Exception as exc:
+            self.fault = ReadFault(f"{self.path}: damaged after {n} messages ({_short(exc)})", n)
+
+    @property
+    def topics(self) -> list[TopicInfo]:
+        return [TopicInfo(t, mt, self._counts.get(t), enc) for t, (mt, enc) in self._channels.items()]
+
+    @property
+    def start_ns(self) -> int | None:
+        return self._start
+
+    @property
+    def end_ns(self) -> int | None:
+        return self._end
+
+    def messages(self, topics: Iterable[str], start_ns: int | None = None,
+                 end_ns: int | None = None) -> Iterator[RawMessage]:
+        from mcap.reader import NonSeekingReader
+
+        wanted = list(set(topics))
+        if not wanted:
+            return
+        n = 0
+        try:
+            if self._summary is not None:
+                it = self._reader.iter_messages(topics=wanted, starting_at=start_ns,
+                                                ending_at=end_ns)
+            else:
+                self._fh.seek(0)
+                it = NonSeekingReader(self._fh).iter_messages(topics=wanted,
+                                                              log_time_order=False)
+            for schema, ch, msg in it:
+                t = int(msg.log_time)
+                if (start_ns is not None and t < start_ns) or (end_ns is not None and t > end_ns):
+                    continue
+                n += 1
+                yield RawMessage(ch.topic, normalise_msgtype(schema.name if schema else ""), t,
+                                 msg.data, (schema, ch.message_encoding))
+        except Exception as exc:
+            self.fault = ReadFault(f"{self.path}: damaged after {n} messages ({_short(exc)})", n)
+            log.warning("%s", self.fault.message)
+
+    def deserialize(self, raw: RawMessage) -> Any:
+        schema, encoding = raw.key
+        if schema is None:
+            raise ValueError(f"topic {raw.topic} has no schema; cannot decode")
+        typename, version, ts = self._typestore_for(schema, encoding)
+        if version == 1:
+            return ts.deserialize_ros1(raw.data, typename)
+        return ts.deserialize_cdr(raw.data, typename)
+
+    def _typestore_for(self, schema: Any, encoding: str) -> tuple[str, int, Any]:
+        cached = self._schema_cache.get(schema.id)
+        if cached is not None:
+            return cached
+        if encoding == "ros1":
+            version = 1
+        elif encoding == "cdr":
+            version = 2
+        else:
+            raise ValueError(f"message encoding {encoding!r} is not supported (cdr or ros1)")
+        ts = typestore(version)
+        typename = normalise_msgtype(schema.name)
+        if typename not in ts.types:
+            from rosbags.typesys import get_types_from_msg
+
+            text = schema.data.decode()
+            ts.register(get_types_from_msg(text, typename))
+        self._schema_cache[schema.id] = (typename, version, ts)
+        return typename, version, ts
+
+    def close(self) -> None:
+        fh = getattr(self, "_fh", None)
+        if fh is not None:
+            fh.close()
+
+
+# --------------------------------------------------------------------------------------------
+# registry and choice
+# --------------------------------------------------------------------------------------------
+
+MCAP_BACKEND = "mcap"
+"""Backend for standalone ROS 2 MCAP files; the mcap package measured faster (see the benchmark)
+and it is the only one of the two that reads ROS 1-encoded MCAP and files cut short."""
+
+
+def _rosbags(path: Path, files: Sequence[Path]) -> Recording:
+    return RosbagsRecording(path, files)
+
+
+def _mcap(path: Path, files: Sequence[Path]) -> Recording:
+    return McapRecording(path)
+
+
+READERS: dict[str, Any] = {"rosbags": _rosbags, "mcap": _mcap}
+
+
+@dataclass(frozen=True)
+class _Plan:
+    backend: str
+    files: list[Path] = field(default_factory=list)
+    container: str = ""
+
+
+def plan(path: Path) -> _Plan:
+    """Decide which backend reads ``path`` (pure: looks at names and magic bytes only)."""
+    if not path.exists():
+        raise RecordingError(path, "no such file or folder",
+                             hint="check the path; frontdiag reads .bag, .db3, .mcap files and "
+                                  "ROS 2 bag folders")
+    if path.is_dir():
+        if (path / "metadata.yaml").exists():
+            return _Plan("rosbags", [path], "ros2 bag folder")
+        bags = sorted(path.glob("*.bag"))
+        if bags:
+            return _Plan("rosbags", bags, "ros1 split bags")
+        db3 = sorted(path.glob("*.db3"))
+        mcaps = sorted(path.glob("*.mcap"))
+        if len(db3) == 1 and not mcaps:
+            return _Plan("rosbags", db3, "ros2 db3 (no metadata.yaml)")
+        if len(mcaps) == 1 and not db3:
+            return plan(mcaps[0])
+        raise RecordingError(path, "folder holds no metadata.yaml, .bag, single .db3 or .mcap",
+                             hint="pass the recording file itself")
+    if path.stat().st_size == 0:
+        raise RecordingError(path, "file is empty")
+    with open(path, "rb") as fh:
+        magic = fh.read(13)
+    if magic.startswith(b"\x89MCAP"):
+        return _Plan(MCAP_BACKEND if _mcap_profile(path) in ("ros2", "") else "mcap", [path],
+                     "mcap")
+    if magic.startswith(b"#ROSBAG V2.0"):
+        return _Plan("rosbags", [path], "ros1 bag")
+    if magic.startswith(b"SQLite format"):
+        return _Plan("rosbags", [path], "ros2 db3 (no metadata.yaml)")
+    raise RecordingError(path, "unknown container (not MCAP, ROS 1 bag v2.0 or sqlite3)",
+                         hint="frontdiag reads .bag, .db3, .mcap files and ROS 2 bag folders")
+
+
+def _mcap_profile(path: Path) -> str:
+    try:
+        from mcap.reader import make_reader
+
+        with open(path, "rb") as fh:
+            return str(make_reader(fh).get_header().profile)
+    except Exception:
+        return ""
+
+
+def open_recording(path: Path | str, backend: str | None = None) -> Recording:
+    """Open a recording with the registered backend that reads it (or the one named)."""
+    path = Path(path)
+    p = plan(path)
+    name = backend or p.backend
+    if name not in READERS:
+        raise RecordingError(path, f"unknown reader backend {name!r}")
+    return READERS[name](path, p.files)  # type: ignore[no-any-return]
+
+
+def _short(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+    return text[:200]
+
+
+def _damage_hint(path: Path) -> str:
+    if path.suffix == ".bag":
+        return "the bag may be unindexed or cut short; `rosbag reindex` repairs an unindexed bag"
+    return "the recording may be damaged or cut short"

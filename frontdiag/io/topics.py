@@ -1,0 +1,100 @@
+"""Which topics analyze reads: the only candidate automatically, otherwise the user says."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from frontdiag.errors import TopicError
+from frontdiag.io.camera_info import CAMERA_INFO_TYPE, camera_info_topic_for
+from frontdiag.io.images import IMAGE_TYPES
+from frontdiag.io.readers import TopicInfo
+
+LIDAR_TYPES = ("sensor_msgs/msg/PointCloud2", "sensor_msgs/msg/LaserScan")
+ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
+_NOT_ODOMETRY = ("ground_truth", "groundtruth", "/gt", "truth", "mocap", "vicon")
+
+
+@dataclass(frozen=True)
+class TopicChoice:
+    camera: str | None = None
+    camera_type: str | None = None
+    camera_info: str | None = None
+    lidar: str | None = None
+    lidar_type: str | None = None
+    odometry: str | None = None
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def topics(self) -> list[str]:
+        return [t for t in (self.camera, self.camera_info, self.lidar, self.odometry) if t]
+
+
+def candidates(topics: list[TopicInfo], types: tuple[str, ...]) -> list[TopicInfo]:
+    return sorted((t for t in topics if t.msgtype in types), key=lambda t: t.topic)
+
+
+def _pick(kind: str, option: str, requested: str | None, cands: list[TopicInfo],
+          all_topics: list[TopicInfo]) -> TopicInfo | None:
+    if requested is not None:
+        for t in all_topics:
+            if t.topic == requested:
+                if t not in cands:
+                    raise TopicError(f"topic {requested} is {t.msgtype}, not a {kind} topic",
+                                     candidates=[c.topic for c in cands],
+                                     hint=_suggest(option, cands))
+                return t
+        raise TopicError(f"topic {requested} is not in the recording",
+                         candidates=[c.topic for c in cands], hint=_suggest(option, cands))
+    if len(cands) == 1:
+        return cands[0]
+    if len(cands) > 1:
+        lines = "\n".join(f"  {option} {c.topic}    ({c.msgtype.split('/')[-1]}, "
+                          f"{c.count if c.count is not None else '?'} msgs)" for c in cands)
+        raise TopicError(f"{len(cands)} {kind} topics; choose one by passing:\n{lines}",
+                         candidates=[c.topic for c in cands])
+    return None
+
+
+def _suggest(option: str, cands: list[TopicInfo]) -> str:
+    if not cands:
+        return f"the recording has no topic that {option} can take; see `frontdiag info`"
+    return "available: " + ", ".join(f"{option} {c.topic}" for c in cands)
+
+
+def choose_topics(topics: list[TopicInfo], *, camera_topic: str | None = None,
+                  lidar_topic: str | None = None, odom_topic: str | None = None,
+                  use_camera: bool = True, use_lidar: bool = True) -> TopicChoice:
+    """Pick the camera, CameraInfo, LiDAR and odometry topics analyze will read."""
+    notes: list[str] = []
+    cam = _pick("camera image", "--camera-topic", camera_topic,
+                candidates(topics, IMAGE_TYPES), topics) if use_camera else None
+    lid = _pick("LiDAR", "--lidar-topic", lidar_topic,
+                candidates(topics, LIDAR_TYPES), topics) if use_lidar else None
+    info = None
+    if cam is not None:
+        infos = [t.topic for t in candidates(topics, (CAMERA_INFO_TYPE,))]
+        info = camera_info_topic_for(cam.topic, infos)
+        if info is None:
+            notes.append(f"no CameraInfo for {cam.topic}")
+    odom = None
+    if lid is not None:
+        odoms = candidates(topics, (ODOMETRY_TYPE,))
+        if odom_topic is not None:
+            picked = _pick("odometry", "--odom-topic", odom_topic, odoms, topics)
+            odom = picked.topic if picked else None
+        else:
+            usable = [o for o in odoms if not any(k in o.topic.lower() for k in _NOT_ODOMETRY)]
+            if len(usable) == 1:
+                odom = usable[0].topic
+            elif len(usable) > 1:
+                notes.append("several odometry topics; LiDAR uses a constant-velocity prior "
+                             "(pass --odom-topic to use one)")
+    if cam is None and lid is None:
+        if use_camera and use_lidar:
+            raise TopicError("no usable sensor topics: the recording has no sensor_msgs/Image, "
+                             "CompressedImage, PointCloud2 or LaserScan messages",
+                             hint="run `frontdiag info LOG` to see what it holds")
+        raise TopicError("nothing left to analyze with the sensors that were switched off")
+    return TopicChoice(camera=cam.topic if cam else None, camera_type=cam.msgtype if cam else None,
+                       camera_info=info, lidar=lid.topic if lid else None,
+                       lidar_type=lid.msgtype if lid else None, odometry=odom, notes=notes)

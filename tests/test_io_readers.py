@@ -1,0 +1,200 @@
+"""Every container and every image encoding reads back to the same grey frames."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from recording_factory import CONTAINERS, DT, K, T0, frame, write_recording
+
+from frontdiag.api import AnalysisOptions, iter_camera_frames
+from frontdiag.errors import DecodeError, RecordingError, TopicError
+from frontdiag.io.images import GrayConverter
+from frontdiag.io.readers import open_recording
+from frontdiag.io.topics import choose_topics
+from frontdiag.io.writer import build_message, image_msg, typestore
+
+
+@pytest.mark.parametrize("container", list(CONTAINERS))
+def test_every_container_reads_back(tmp_path: Path, container: str) -> None:
+    fmt, name = CONTAINERS[container]
+    path = write_recording(tmp_path / name, fmt, n=4)
+    with open_recording(path) as rec:
+        topics = {t.topic: t for t in rec.topics}
+        assert topics["/cam/image_raw"].msgtype == "sensor_msgs/msg/Image"
+        assert topics["/cam/image_raw"].count == 4
+        assert topics["/cam/camera_info"].count == 4
+        assert rec.start_ns == T0 and rec.end_ns == T0 + 3 * DT
+        frames = list(iter_camera_frames(rec, "/cam/image_raw", "sensor_msgs/msg/Image"))
+    assert [f.t_ns for f in frames] == [T0 + i * DT for i in range(4)]
+    for i, f in enumerate(frames):
+        np.testing.assert_array_equal(f.gray, frame(i))
+
+
+def test_standalone_db3_without_metadata(tmp_path: Path) -> None:
+    folder = write_recording(tmp_path / "bagdir", "ros2-db3", n=3)
+    db3 = next(folder.glob("*.db3"))
+    alone = tmp_path / "alone.db3"
+    shutil.copy(db3, alone)
+    with open_recording(alone) as rec:
+        assert {t.topic for t in rec.topics} == {"/cam/image_raw", "/cam/camera_info"}
+        assert len(list(rec.messages(["/cam/image_raw"]))) == 3
+
+
+def test_standalone_mcap_from_ros2_folder(tmp_path: Path) -> None:
+    folder = write_recording(tmp_path / "bagdir", "ros2-mcap", n=3)
+    mc = next(folder.glob("*.mcap"))
+    with open_recording(mc) as rec:
+        assert len(list(rec.messages(["/cam/image_raw"]))) == 3
+
+
+def test_folder_of_split_ros1_bags(tmp_path: Path) -> None:
+    folder = tmp_path / "split"
+    folder.mkdir()
+    write_recording(folder / "a_0.bag", "bag", n=3)
+    write_recording(folder / "a_1.bag", "bag", n=2,
+                    stamps=[T0 + (3 + i) * DT for i in range(2)])
+    with open_recording(folder) as rec:
+        counts = {t.topic: t.count for t in rec.topics}
+        assert counts["/cam/image_raw"] == 5
+
+
+@pytest.mark.parametrize("encoding", ["mono8", "mono16", "rgb8", "bgr8", "rgba8", "bgra8",
+                                      "jpeg", "png"])
+def test_every_encoding_becomes_the_same_grey(tmp_path: Path, encoding: str) -> None:
+    path = write_recording(tmp_path / "run.mcap", "mcap", n=2, encoding=encoding)
+    with open_recording(path) as rec:
+        img_topic = next(t for t in rec.topics if t.msgtype.startswith("sensor_msgs/msg/C")
+                         and "Info" not in t.msgtype or t.msgtype.endswith("/Image"))
+        frames = list(iter_camera_frames(rec, img_topic.topic, img_topic.msgtype))
+    assert len(frames) == 2
+    tol = 3 if encoding == "jpeg" else 0
+    diff = np.abs(frames[1].gray.astype(int) - frame(1).astype(int))
+    assert np.mean(diff) <= tol
+
+
+@pytest.mark.parametrize("encoding", ["bayer_rggb8", "bayer_bggr8", "bayer_gbrg8",
+                                      "bayer_grbg8"])
+def test_bayer_is_demosaiced(encoding: str) -> None:
+    # A Bayer mosaic of a uniform grey patch demosaics to that grey.
+    ts = typestore(2)
+    mosaic = np.full((8, 8), 100, np.uint8)
+    msg = build_message(ts, "sensor_msgs/msg/Image", image_msg(mosaic, encoding, 1))
+    gray, enc = GrayConverter("/cam")(msg, "sensor_msgs/msg/Image")
+    assert enc == encoding
+    assert gray.shape == (8, 8)
+    assert np.all(np.abs(gray.astype(int) - 100) <= 1)
+
+
+def test_bayer_pattern_mapping_matches_colour_conversion() -> None:
+    # RGGB: red at (0,0). A pure-red scene must come out as the grey of pure red.
+    ts = typestore(2)
+    mosaic = np.zeros((8, 8), np.uint8)
+    mosaic[0::2, 0::2] = 200  # R sites of an RGGB pattern
+    msg = build_message(ts, "sensor_msgs/msg/Image", image_msg(mosaic, "bayer_rggb8", 1))
+    gray, _ = GrayConverter("/cam")(msg, "sensor_msgs/msg/Image")
+    red_grey = cv2.cvtColor(np.array([[[0, 0, 200]]], np.uint8), cv2.COLOR_BGR2GRAY)[0, 0]
+    assert abs(int(np.median(gray[2:-2, 2:-2])) - int(red_grey)) <= 2
+
+
+def test_step_mismatch_names_topic_and_field() -> None:
+    ts = typestore(2)
+    vals = image_msg(np.zeros((4, 6), np.uint8), "mono8", 1)
+    vals["step"] = 3
+    msg = build_message(ts, "sensor_msgs/msg/Image", vals)
+    with pytest.raises(DecodeError, match=r"topic /cam: field step"):
+        GrayConverter("/cam")(msg, "sensor_msgs/msg/Image")
+
+
+def test_unknown_encoding_names_it() -> None:
+    ts = typestore(2)
+    vals = image_msg(np.zeros((4, 6), np.uint8), "yuv422", 1)
+    msg = build_message(ts, "sensor_msgs/msg/Image", vals)
+    with pytest.raises(DecodeError, match="yuv422"):
+        GrayConverter("/cam")(msg, "sensor_msgs/msg/Image")
+
+
+def test_mono16_shift_is_fixed_from_first_frame() -> None:
+    ts = typestore(2)
+    conv = GrayConverter("/cam")
+    a = np.full((4, 4), 4000, np.uint16)  # a 12-bit sensor
+    b = np.full((4, 4), 2000, np.uint16)
+    ga, _ = conv(build_message(ts, "sensor_msgs/msg/Image", image_msg(a, "mono16", 1)),
+                 "sensor_msgs/msg/Image")
+    gb, _ = conv(build_message(ts, "sensor_msgs/msg/Image", image_msg(b, "mono16", 2)),
+                 "sensor_msgs/msg/Image")
+    assert conv.mono16_shift == 4
+    assert int(ga[0, 0]) == 4000 >> 4 and int(gb[0, 0]) == 2000 >> 4
+
+
+def test_missing_file_is_recording_error(tmp_path: Path) -> None:
+    with pytest.raises(RecordingError, match="no such file"):
+        open_recording(tmp_path / "nope.mcap")
+
+
+def test_unknown_container(tmp_path: Path) -> None:
+    p = tmp_path / "x.mcap"
+    p.write_bytes(b"hello world, not a bag")
+    with pytest.raises(RecordingError, match="unknown container"):
+        open_recording(p)
+
+
+def test_ambiguous_camera_topics_list_the_exact_option(tmp_path: Path) -> None:
+    def extra(w, i, t):  # type: ignore[no-untyped-def]
+        w.write("/cam2/image_raw", "sensor_msgs/msg/Image", image_msg(frame(i), "mono8", t), t)
+
+    path = write_recording(tmp_path / "two.mcap", "mcap", n=2, extra=extra)
+    with open_recording(path) as rec, pytest.raises(TopicError) as err:
+        choose_topics(rec.topics)
+    assert "--camera-topic /cam/image_raw" in str(err.value)
+    assert "--camera-topic /cam2/image_raw" in str(err.value)
+
+
+def test_requested_topic_must_exist(tmp_path: Path) -> None:
+    path = write_recording(tmp_path / "one.mcap", "mcap", n=2)
+    with open_recording(path) as rec, pytest.raises(TopicError, match="/nope"):
+        choose_topics(rec.topics, camera_topic="/nope")
+
+
+def test_camera_info_paired_by_namespace(tmp_path: Path) -> None:
+    path = write_recording(tmp_path / "one.mcap", "mcap", n=2)
+    with open_recording(path) as rec:
+        choice = choose_topics(rec.topics)
+    assert choice.camera == "/cam/image_raw"
+    assert choice.camera_info == "/cam/camera_info"
+
+
+def test_selection_start_end_stride_max(tmp_path: Path) -> None:
+    path = write_recording(tmp_path / "sel.mcap", "mcap", n=20)
+    with open_recording(path) as rec:
+        opts = AnalysisOptions(start_s=0.2, end_s=0.6, stride=2)
+        got = [f.index for f in iter_camera_frames(rec, "/cam/image_raw", "", opts)]
+        # messages at 0.20..0.60 s are indices 4..12; stride counts within the window
+        assert got == [4, 6, 8, 10, 12]
+        opts = AnalysisOptions(max_frames=3)
+        assert len(list(iter_camera_frames(rec, "/cam/image_raw", "", opts))) == 3
+
+
+def test_intrinsics_from_camera_info_in_ros1_and_ros2(tmp_path: Path) -> None:
+    from frontdiag.io.camera_info import from_camera_info
+
+    for fmt, name in (("bag", "a.bag"), ("mcap", "b.mcap"), ("mcap-ros1", "c.mcap")):
+        path = write_recording(tmp_path / name, fmt, n=1)
+        with open_recording(path) as rec:
+            raw = next(iter(rec.messages(["/cam/camera_info"])))
+            intr = from_camera_info(rec.deserialize(raw), "/cam/camera_info")
+        assert intr is not None
+        np.testing.assert_allclose(intr.K, K)
+
+
+def test_recording_is_not_modified(tmp_path: Path) -> None:
+    import hashlib
+
+    path = write_recording(tmp_path / "ro.mcap", "mcap", n=3)
+    before = hashlib.sha256(path.read_bytes()).hexdigest()
+    with open_recording(path) as rec:
+        list(iter_camera_frames(rec, "/cam/image_raw", "sensor_msgs/msg/Image"))
+    assert hashlib.sha256(path.read_bytes()).hexdigest() == before
