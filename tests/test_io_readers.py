@@ -8,11 +8,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from recording_factory import CONTAINERS, DT, K, T0, frame, write_recording
+from recording_factory import CONTAINERS, DT, T0, K, frame, write_recording
 
 from frontdiag.api import AnalysisOptions, iter_camera_frames
 from frontdiag.errors import DecodeError, RecordingError, TopicError
-from frontdiag.io.images import GrayConverter
+from frontdiag.io.images import IMAGE_TYPES, GrayConverter
 from frontdiag.io.readers import open_recording
 from frontdiag.io.topics import choose_topics
 from frontdiag.io.writer import build_message, image_msg, typestore
@@ -67,8 +67,7 @@ def test_folder_of_split_ros1_bags(tmp_path: Path) -> None:
 def test_every_encoding_becomes_the_same_grey(tmp_path: Path, encoding: str) -> None:
     path = write_recording(tmp_path / "run.mcap", "mcap", n=2, encoding=encoding)
     with open_recording(path) as rec:
-        img_topic = next(t for t in rec.topics if t.msgtype.startswith("sensor_msgs/msg/C")
-                         and "Info" not in t.msgtype or t.msgtype.endswith("/Image"))
+        img_topic = next(t for t in rec.topics if t.msgtype in IMAGE_TYPES)
         frames = list(iter_camera_frames(rec, img_topic.topic, img_topic.msgtype))
     assert len(frames) == 2
     tol = 3 if encoding == "jpeg" else 0
@@ -198,3 +197,23 @@ def test_recording_is_not_modified(tmp_path: Path) -> None:
     with open_recording(path) as rec:
         list(iter_camera_frames(rec, "/cam/image_raw", "sensor_msgs/msg/Image"))
     assert hashlib.sha256(path.read_bytes()).hexdigest() == before
+
+
+@pytest.mark.parametrize("fmt,name", [("mcap", "t.mcap"), ("bag", "t.bag"),
+                                      ("mcap-ros1", "t1.mcap")])
+def test_truncated_recording_yields_messages_before_the_damage(tmp_path: Path, fmt: str,
+                                                               name: str) -> None:
+    full = write_recording(tmp_path / name, fmt, n=150)
+    data = full.read_bytes()
+    cut = tmp_path / ("cut_" + name)
+    cut.write_bytes(data[: int(len(data) * 0.6)])
+    with open_recording(cut) as rec:
+        got = list(rec.messages(["/cam/image_raw"]))
+        assert rec.fault is not None and "damaged after" in rec.fault.message
+        assert 20 <= len(got) < 150
+        # the survivors decode to the frames that were written
+        first = rec.deserialize(got[0])
+        assert first.encoding == "mono8"
+        last_index = len(got) - 1
+        gray = np.asarray(rec.deserialize(got[last_index]).data).reshape(120, 160)
+        np.testing.assert_array_equal(gray, frame(last_index))

@@ -10,6 +10,8 @@ import logging
 import sys
 
 import typer
+from typer import Abort as _Abort
+from typer import Exit as _Exit
 
 from frontdiag import __version__
 from frontdiag.errors import (
@@ -19,6 +21,12 @@ from frontdiag.errors import (
     EXIT_OK,
     FrontdiagError,
 )
+
+# typer >= 0.20 vendors click; older releases depend on it.
+try:  # pragma: no cover - depends on the installed typer
+    from typer._click.exceptions import ClickException as _ClickException
+except ImportError:  # pragma: no cover
+    from click.exceptions import ClickException as _ClickException
 
 EPILOG = (
     "Exit codes: 0 ok · 1 gate failed · 2 bad input, usage or config · 3 internal error · "
@@ -43,13 +51,7 @@ app = typer.Typer(
 
 _state = {"debug": False}
 
-# typer >= 0.20 vendors click; older releases depend on it.
-try:  # pragma: no cover - depends on the installed typer
-    from typer._click.exceptions import ClickException as _ClickException
-except ImportError:  # pragma: no cover
-    from click.exceptions import ClickException as _ClickException
-from typer import Abort as _Abort
-from typer import Exit as _Exit
+
 
 
 def _version_callback(value: bool) -> None:
@@ -70,7 +72,7 @@ def _root(
 
 
 def _register() -> None:
-    from frontdiag.cli import (  # noqa: PLC0415 - registration order is the --help order
+    from frontdiag.cli import (
         analyze,
         budget,
         eval_,

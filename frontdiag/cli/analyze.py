@@ -1,9 +1,133 @@
-"""`frontdiag analyze` (being built)."""
+"""`frontdiag analyze LOG`: re-run the frontend frame by frame and report what it reveals."""
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+from typing import Any
+
 import typer
+
+from frontdiag.cli import EPILOG
+
+HELP = """Re-run the camera (and LiDAR) frontend on a recording, frame by frame.
+
+Reads ROS 1 .bag (or a folder of split bags), ROS 2 bag folders (.db3 or .mcap storage),
+standalone .db3/.mcap files and plain MCAP (cdr or ros1 encoding). The only image topic (and
+the only LiDAR topic) is taken automatically; with several, frontdiag prints the exact
+--camera-topic / --lidar-topic to pass.
+
+Examples:
+
+  frontdiag analyze run.mcap
+
+  frontdiag analyze run.bag --camera-topic /cam/image_raw --out results/ --format csv
+
+  frontdiag analyze run_db3/ --start 12 --end 20 --intrinsics 615,615,320,240
+
+  frontdiag analyze run.mcap --max-frames 300 --stride 2 --json > summary.json
+"""
 
 
 def register(app: typer.Typer) -> None:
-    """Add the command to the app."""
+    app.command("analyze", help=HELP, epilog=EPILOG, no_args_is_help=True)(analyze_cmd)
+
+
+def analyze_cmd(
+    log: Path = typer.Argument(..., help="Recording: .bag, .db3, .mcap, or a bag folder.",
+                               show_default=False),
+    out: Path | None = typer.Option(None, "--out", "-o",
+                                    help="Result directory: frames.parquet, manifest.json, "
+                                         "episodes.parquet (and frames.csv)."),
+    fmt: str = typer.Option("parquet", "--format",
+                            help="parquet (always written) or csv (adds frames.csv)."),
+    camera_topic: str | None = typer.Option(None, "--camera-topic",
+                                            help="Image topic (Image or CompressedImage)."),
+    lidar_topic: str | None = typer.Option(None, "--lidar-topic",
+                                           help="LiDAR topic (PointCloud2 or LaserScan)."),
+    odom_topic: str | None = typer.Option(None, "--odom-topic",
+                                          help="Odometry used as the LiDAR motion prior."),
+    no_camera: bool = typer.Option(False, "--no-camera", help="Skip the camera frontend."),
+    no_lidar: bool = typer.Option(False, "--no-lidar", help="Skip the LiDAR frontend."),
+    intrinsics: str | None = typer.Option(None, "--intrinsics",
+                                          help="fx,fy,cx,cy in pixels (overrides CameraInfo)."),
+    camera_info: Path | None = typer.Option(None, "--camera-info",
+                                            help="ROS camera_info YAML (overrides CameraInfo)."),
+    start: float | None = typer.Option(None, "--start", help="Seconds from recording start."),
+    end: float | None = typer.Option(None, "--end", help="Seconds from recording start."),
+    max_frames: int | None = typer.Option(None, "--max-frames",
+                                          help="Analyse at most N frames per sensor."),
+    stride: int = typer.Option(1, "--stride", help="Analyse every N-th message."),
+    features: int = typer.Option(1000, "--features", help="ORB features per frame."),
+    as_json: bool = typer.Option(False, "--json",
+                                 help="Print a machine-readable summary on stdout."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or table."),
+) -> int:
+    from rich.console import Console
+
+    from frontdiag.api import AnalysisOptions
+    from frontdiag.camera.frontend import CameraParams
+    from frontdiag.errors import EXIT_INTERRUPTED, EXIT_OK, ConfigError
+    from frontdiag.output import prepare_out_dir, write_manifest, write_table
+
+    if fmt not in ("parquet", "csv"):
+        raise ConfigError(f"--format {fmt!r}: choose parquet or csv")
+    if features < 50:
+        raise ConfigError(f"--features {features}: need at least 50")
+    out_dir = prepare_out_dir(out, [log]) if out is not None else None
+    opts = AnalysisOptions(
+        camera_topic=camera_topic, lidar_topic=lidar_topic, odom_topic=odom_topic,
+        use_camera=not no_camera, use_lidar=not no_lidar, intrinsics=intrinsics,
+        camera_info_file=str(camera_info) if camera_info else None, start_s=start, end_s=end,
+        max_frames=max_frames, stride=stride, camera_params=CameraParams(n_features=features))
+    err = Console(stderr=True)
+    result = _run_with_progress(log, opts, err, show=not quiet and not as_json)
+    if out_dir is not None:
+        write_table(out_dir, result.table, csv=(fmt == "csv"))
+        write_manifest(out_dir, result.manifest)
+    if as_json:
+        typer.echo(json.dumps(_json_summary(result), indent=2, default=str))
+    elif not quiet:
+        from frontdiag.cli._render import render_analysis
+
+        render_analysis(Console(), result, out_dir)
+    if result.interrupted:
+        err.print("[yellow]interrupted[/]: the frames analysed so far were kept")
+        return EXIT_INTERRUPTED
+    if result.fault is not None:
+        raise result.fault
+    return EXIT_OK
+
+
+def _run_with_progress(log: Path, opts: Any, err: Any, show: bool) -> Any:
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    from frontdiag.api import run_analysis
+
+    if not show:
+        return run_analysis(log, opts)
+    with Progress(TextColumn("[bold]analyze[/] {task.description}"), BarColumn(),
+                  MofNCompleteColumn(), TextColumn("frames"), TimeElapsedColumn(),
+                  TimeRemainingColumn(), console=err, transient=True) as bar:
+        task = bar.add_task(log.name, total=None)
+
+        def progress(done: int, expected: int | None) -> None:
+            bar.update(task, completed=done, total=expected)
+
+        return run_analysis(log, opts, progress=progress)
+
+
+def _json_summary(result: Any) -> dict[str, Any]:
+    from frontdiag.cli._render import sensor_summaries
+
+    return {"input": result.manifest["input"], "topics": result.manifest["topics"],
+            "counts": result.manifest["counts"], "notes": result.notes,
+            "fault": None if result.fault is None else str(result.fault),
+            "sensors": sensor_summaries(result.table)}

@@ -1,9 +1,62 @@
-"""`frontdiag info` (being built)."""
+"""`frontdiag info LOG`: what a recording holds and what analyze would read."""
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import typer
+
+from frontdiag.cli import EPILOG
+
+HELP = """Show topics, message types, counts, rates and duration of a recording, which topics
+analyze would choose, and anything odd (missing CameraInfo, stamp gaps, damage).
+
+Examples:
+
+  frontdiag info run.mcap
+
+  frontdiag info run_db3/ --json
+"""
 
 
 def register(app: typer.Typer) -> None:
-    """Add the command to the app."""
+    app.command("info", help=HELP, epilog=EPILOG, no_args_is_help=True)(info_cmd)
+
+
+def info_cmd(
+    log: Path = typer.Argument(..., help="Recording: .bag, .db3, .mcap, or a bag folder.",
+                               show_default=False),
+    as_json: bool = typer.Option(False, "--json", help="Machine-readable output on stdout."),
+) -> int:
+    from rich.console import Console
+    from rich.table import Table
+
+    from frontdiag.inspect import inspect_recording
+
+    rep = inspect_recording(log)
+    if as_json:
+        typer.echo(json.dumps(rep.to_dict(), indent=2, default=str))
+        return 0
+    con = Console()
+    dur = f"{rep.duration_s:.2f} s" if rep.duration_s is not None else "unknown"
+    con.print(f"[bold]{rep.path}[/]  [dim]{rep.backend} reader[/]  duration {dur}")
+    t = Table(show_edge=False, header_style="bold")
+    for col, just in (("topic", "left"), ("type", "left"), ("messages", "right"),
+                      ("rate (Hz)", "right"), ("max gap (s)", "right"), ("detail", "left")):
+        t.add_column(col, justify=just)  # type: ignore[arg-type]
+    for tr in rep.topics:
+        t.add_row(tr.topic, tr.msgtype, "?" if tr.count is None else str(tr.count),
+                  "—" if tr.rate_hz is None else f"{tr.rate_hz:.2f}",
+                  "—" if tr.max_gap_s is None else f"{tr.max_gap_s:.3f}", tr.detail)
+    con.print(t)
+    if rep.choice is not None:
+        c = rep.choice
+        con.print("[bold]analyze would read[/]: "
+                  f"camera {c.camera or '—'} (CameraInfo {c.camera_info or '—'}), "
+                  f"LiDAR {c.lidar or '—'}, odometry {c.odometry or '—'}", highlight=False)
+    else:
+        con.print(f"[bold]analyze cannot start on its own[/]: {rep.choice_error}", highlight=False)
+    for odd in rep.oddities:
+        con.print(f"[yellow]odd:[/] {odd}", highlight=False)
+    return 0

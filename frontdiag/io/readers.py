@@ -318,7 +318,16 @@ and it is the only one of the two that reads ROS 1-encoded MCAP and files cut sh
 
 
 def _rosbags(path: Path, files: Sequence[Path]) -> Recording:
-    return RosbagsRecording(path, files)
+    try:
+        return RosbagsRecording(path, files)
+    except RecordingError:
+        if len(files) != 1 or files[0].suffix != ".bag":
+            raise
+    # An unindexed or truncated ROS 1 bag: read its records sequentially up to the damage.
+    from frontdiag.io.bag_scan import ScannedBag
+
+    log.warning("%s: index missing or damaged; reading records sequentially", path)
+    return ScannedBag(files[0])
 
 
 def _mcap(path: Path, files: Sequence[Path]) -> Recording:

@@ -160,7 +160,8 @@ class RecordingWriter:
             from mcap.writer import Writer as McapWriter
 
             self._fh = open(self.path, "wb")  # noqa: SIM115 - closed in close()
-            self._writer = McapWriter(self._fh)
+            # 1 MiB chunks: a recording cut short loses at most one chunk
+            self._writer = McapWriter(self._fh, chunk_size=1024 * 1024)
             profile = "ros1" if self.fmt == "mcap-ros1" else "ros2"
             self._writer.start(profile=profile, library="frontdiag")
 

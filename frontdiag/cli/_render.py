@@ -1,0 +1,95 @@
+"""Terminal rendering of an analysis: a short summary table per sensor, with units."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+from rich.console import Console
+from rich.table import Table
+
+# (column, label with unit, format)
+CAMERA_SUMMARY = [
+    ("n_keypoints", "keypoints", "{:.0f}"),
+    ("entropy_norm", "entropy H/Hmax", "{:.3f}"),
+    ("ratio_reject_rate", "ratio-test reject", "{:.0%}"),
+    ("n_matches", "matches", "{:.0f}"),
+    ("inlier_ratio", "inlier ratio w", "{:.2f}"),
+    ("h_over_e", "H/E inliers", "{:.2f}"),
+    ("parallax_med_deg", "parallax (deg)", "{:.2f}"),
+    ("pose_info_cond", "pose info λmax/λmin", "{:.0f}"),
+    ("d_mean_intensity", "Δ mean (grey lvl)", "{:+.1f}"),
+    ("photo_residual_med", "photo residual (grey lvl)", "{:.1f}"),
+    ("ms_total", "latency (ms)", "{:.1f}"),
+]
+LIDAR_SUMMARY = [
+    ("n_points", "points", "{:.0f}"),
+    ("n_points_used", "points used", "{:.0f}"),
+    ("deskew_m", "deskew (m)", "{:.3f}"),
+    ("icp_fitness", "fitness", "{:.2f}"),
+    ("icp_rmse_m", "RMSE (m)", "{:.3f}"),
+    ("lidar_eig_min", "λmin (normalised)", "{:.0f}"),
+    ("lidar_cond", "condition number", "{:.0f}"),
+    ("ms_total", "latency (ms)", "{:.1f}"),
+]
+
+
+def _stats(s: pd.Series) -> dict[str, float] | None:
+    v = pd.to_numeric(s, errors="coerce").to_numpy(dtype=float)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return None
+    return {"p10": float(np.percentile(v, 10)), "median": float(np.median(v)),
+            "p90": float(np.percentile(v, 90)), "n": int(v.size)}
+
+
+def sensor_summaries(table: pd.DataFrame) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    if table.empty:
+        return out
+    for sensor, spec in (("camera", CAMERA_SUMMARY), ("lidar", LIDAR_SUMMARY)):
+        rows = table[table["sensor"] == sensor]
+        if rows.empty:
+            continue
+        out[sensor] = {
+            "frames": len(rows),
+            "status": {str(k): int(v) for k, v in rows["status"].value_counts().items()},
+            "metrics": {col: _stats(rows[col]) for col, _, _ in spec if col in rows},
+        }
+    return out
+
+
+def render_analysis(console: Console, result: Any, out_dir: Path | None) -> None:
+    table = result.table
+    man = result.manifest
+    topics = man["topics"]
+    src = f"{man['input']['path']}  [dim]({man['input']['backend']})[/]"
+    console.print(f"[bold]frontdiag analyze[/] {src}")
+    for sensor, spec in (("camera", CAMERA_SUMMARY), ("lidar", LIDAR_SUMMARY)):
+        rows = table[table["sensor"] == sensor] if not table.empty else table
+        if rows.empty:
+            continue
+        topic = topics.get(sensor)
+        status = ", ".join(f"{k} {v}" for k, v in rows["status"].value_counts().items())
+        t = Table(title=f"{sensor} {topic}: {len(rows)} frames ({status})",
+                  title_justify="left", show_edge=False, header_style="bold")
+        t.add_column("metric")
+        for c in ("p10", "median", "p90"):
+            t.add_column(c, justify="right")
+        for col, label, fmt in spec:
+            if col not in rows:
+                continue
+            st = _stats(rows[col])
+            if st is None:
+                t.add_row(label, "—", "—", "—")
+                continue
+            t.add_row(label, *(fmt.format(st[k]) for k in ("p10", "median", "p90")))
+        console.print(t)
+    if man.get("intrinsics"):
+        console.print(f"[dim]intrinsics: {man['intrinsics']['source']}[/]")
+    for note in result.notes:
+        console.print(f"[yellow]note:[/] {note}", highlight=False)
+    if out_dir is not None:
+        console.print(f"[green]wrote[/] {out_dir}/frames.parquet, manifest.json")

@@ -1,0 +1,133 @@
+"""What a recording holds, and what analyze would make of it (``frontdiag info``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from frontdiag.errors import TopicError
+from frontdiag.io.images import IMAGE_TYPES
+from frontdiag.io.readers import open_recording
+from frontdiag.io.topics import LIDAR_TYPES, TopicChoice, choose_topics
+
+SENSOR_TYPES = (*IMAGE_TYPES, *LIDAR_TYPES)
+
+
+@dataclass
+class TopicReport:
+    topic: str
+    msgtype: str
+    count: int | None
+    rate_hz: float | None = None
+    first_s: float | None = None
+    last_s: float | None = None
+    max_gap_s: float | None = None
+    detail: str = ""  # e.g. "640x480 mono8" for images
+
+
+@dataclass
+class RecordingReport:
+    path: Path
+    backend: str
+    duration_s: float | None
+    start_ns: int | None
+    end_ns: int | None
+    topics: list[TopicReport]
+    choice: TopicChoice | None
+    choice_error: str | None
+    oddities: list[str] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "path": str(self.path), "backend": self.backend, "duration_s": self.duration_s,
+            "start_ns": self.start_ns, "end_ns": self.end_ns,
+            "topics": [t.__dict__ for t in self.topics],
+            "analyze_would_use": None if self.choice is None else {
+                "camera": self.choice.camera, "camera_info": self.choice.camera_info,
+                "lidar": self.choice.lidar, "odometry": self.choice.odometry},
+            "choice_error": self.choice_error, "oddities": self.oddities,
+        }
+
+
+def inspect_recording(path: Path | str, gap_factor: float = 3.0) -> RecordingReport:
+    """One pass over the log times of every topic (header stamps for sensor topics)."""
+    path = Path(path)
+    with open_recording(path) as rec:
+        infos = rec.topics
+        start, end = rec.start_ns, rec.end_ns
+        times: dict[str, list[int]] = {t.topic: [] for t in infos}
+        sensor_topics = {t.topic for t in infos if t.msgtype in SENSOR_TYPES}
+        stamps: dict[str, list[int]] = {t: [] for t in sensor_topics}
+        detail: dict[str, str] = {}
+        for raw in rec.messages([t.topic for t in infos]):
+            times[raw.topic].append(raw.log_ns)
+            if raw.topic in sensor_topics:
+                try:
+                    msg = rec.deserialize(raw)
+                    st = msg.header.stamp
+                    stamps[raw.topic].append(int(st.sec) * 1_000_000_000 + int(st.nanosec))
+                    if raw.topic not in detail:
+                        detail[raw.topic] = _detail(msg, raw.msgtype)
+                except Exception:
+                    stamps[raw.topic].append(-1)
+        fault = rec.fault
+        backend = rec.backend
+    oddities: list[str] = []
+    if fault is not None:
+        oddities.append(f"damaged: {fault.message}")
+    reports = []
+    origin = start or 0
+    for info in sorted(infos, key=lambda t: t.topic):
+        ts = np.asarray(times[info.topic], dtype=np.int64)
+        rep = TopicReport(info.topic, info.msgtype, info.count if info.count is not None
+                          else len(ts), detail=detail.get(info.topic, ""))
+        if ts.size:
+            rep.first_s = (int(ts.min()) - origin) / 1e9
+            rep.last_s = (int(ts.max()) - origin) / 1e9
+        if ts.size >= 2:
+            d = np.diff(np.sort(ts)) / 1e9
+            span = (ts.max() - ts.min()) / 1e9
+            rep.rate_hz = (ts.size - 1) / span if span > 0 else None
+            rep.max_gap_s = float(d.max())
+            med = float(np.median(d))
+            if info.topic in sensor_topics and med > 0 and d.max() > gap_factor * med:
+                n_gaps = int(np.sum(d > gap_factor * med))
+                oddities.append(f"{info.topic}: {n_gaps} gap(s) in log time, longest "
+                                f"{d.max():.3f} s (median period {med:.3f} s)")
+        if info.topic in stamps:
+            st = np.asarray(stamps[info.topic], dtype=np.int64)
+            if np.any(st == 0):
+                oddities.append(f"{info.topic}: {int(np.sum(st == 0))} zero header stamps "
+                                "(analyze uses log time for those)")
+            good = st[st > 0]
+            if good.size >= 2 and np.any(np.diff(good) <= 0):
+                oddities.append(f"{info.topic}: {int(np.sum(np.diff(good) <= 0))} non-monotonic "
+                                "header stamps")
+        reports.append(rep)
+    choice = None
+    choice_error = None
+    try:
+        choice = choose_topics(infos)
+        oddities.extend(f"missing CameraInfo: {n}" if n.startswith("no CameraInfo") else n
+                        for n in choice.notes)
+    except TopicError as exc:
+        choice_error = str(exc)
+    duration = (end - start) / 1e9 if start is not None and end is not None else None
+    return RecordingReport(path, backend, duration, start, end, reports, choice, choice_error,
+                           oddities)
+
+
+def _detail(msg: Any, msgtype: str) -> str:
+    if msgtype.endswith("/Image"):
+        return f"{msg.width}x{msg.height} {msg.encoding}"
+    if msgtype.endswith("CompressedImage"):
+        return f"compressed {msg.format}"
+    if msgtype.endswith("PointCloud2"):
+        names = ",".join(f.name for f in msg.fields)
+        return f"{msg.width * msg.height} pts ({names})"
+    if msgtype.endswith("LaserScan"):
+        return f"{len(msg.ranges)} ranges"
+    return ""

@@ -1,0 +1,116 @@
+"""Write an analysis to a result directory that describes itself.
+
+``frames.parquet`` always, ``frames.csv`` on request, ``manifest.json`` with versions,
+effective parameters, input, topics and skip counts. List columns (``conditions``, ``rules``)
+stay lists in parquet and become ``;``-separated strings in CSV.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from frontdiag.errors import ConfigError, RecordingError
+
+LIST_COLUMNS = ("conditions", "rules")
+
+
+def prepare_out_dir(out: Path, inputs: list[Path]) -> Path:
+    """Create the result directory; refuse to write into the input recording."""
+    out = Path(out)
+    for inp in inputs:
+        try:
+            inp_r = inp.resolve()
+        except OSError:
+            continue
+        if out.resolve() == inp_r or (inp_r.is_dir() and inp_r in out.resolve().parents):
+            raise ConfigError(f"--out {out}: would write inside the input recording {inp}; "
+                              "choose another directory")
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out}: exists and is not a directory")
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def _csv_frame(table: pd.DataFrame) -> pd.DataFrame:
+    df = table.copy()
+    for col in LIST_COLUMNS:
+        if col in df.columns:
+            df[col] = df[col].map(lambda v: ";".join(v) if isinstance(v, list | tuple | np.ndarray)
+                                  else ("" if v is None or (isinstance(v, float) and np.isnan(v))
+                                        else str(v)))
+    return df
+
+
+def write_table(out: Path, table: pd.DataFrame, csv: bool = False) -> list[Path]:
+    written = [out / "frames.parquet"]
+    df = table.copy()
+    # mixed object columns (strings with NaN) must be strings for parquet
+    for col in df.columns:
+        if df[col].dtype == object and col not in LIST_COLUMNS:
+            df[col] = df[col].map(lambda v: None if v is None or (isinstance(v, float)
+                                                                  and np.isnan(v)) else str(v))
+    df.to_parquet(written[0], index=False)
+    if csv:
+        written.append(out / "frames.csv")
+        _csv_frame(table).to_csv(written[1], index=False)
+    return written
+
+
+def write_manifest(out: Path, manifest: dict[str, Any]) -> Path:
+    path = out / "manifest.json"
+    path.write_text(json.dumps(manifest, indent=2, default=_json_default) + "\n")
+    return path
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, Path):
+        return str(obj)
+    return str(obj)
+
+
+def read_table(result: Path) -> pd.DataFrame:
+    """Read ``frames.parquet`` (or ``frames.csv``) from a result directory or file."""
+    result = Path(result)
+    if result.is_dir():
+        for name in ("frames.parquet", "frames.csv"):
+            if (result / name).exists():
+                return read_table(result / name)
+        raise RecordingError(result, "no frames.parquet or frames.csv in this directory",
+                             hint="write one with `frontdiag analyze LOG --out DIR`")
+    if not result.exists():
+        raise RecordingError(result, "no such file or folder")
+    try:
+        if result.suffix == ".csv":
+            df = pd.read_csv(result)
+            for col in LIST_COLUMNS:
+                if col in df.columns:
+                    df[col] = df[col].map(lambda v: [] if not isinstance(v, str) or not v
+                                          else v.split(";"))
+            return df
+        df = pd.read_parquet(result)
+    except Exception as exc:
+        raise RecordingError(result, f"cannot read the frames table ({exc})") from exc
+    for col in LIST_COLUMNS:
+        if col in df.columns:
+            df[col] = df[col].map(lambda v: [] if v is None else list(v))
+    return df
+
+
+def read_manifest(result: Path) -> dict[str, Any]:
+    path = Path(result) / "manifest.json" if Path(result).is_dir() else Path(result)
+    if not path.exists():
+        return {}
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise RecordingError(path, f"not valid JSON ({exc})") from exc
+    return data if isinstance(data, dict) else {}
