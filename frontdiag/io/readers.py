@@ -331,7 +331,7 @@ def _rosbags(path: Path, files: Sequence[Path]) -> Recording:
 
 
 def _mcap(path: Path, files: Sequence[Path]) -> Recording:
-    return McapRecording(path)
+    return McapRecording(files[0] if files else path)
 
 
 READERS: dict[str, Any] = {"rosbags": _rosbags, "mcap": _mcap}
@@ -352,6 +352,10 @@ def plan(path: Path) -> _Plan:
                                   "ROS 2 bag folders")
     if path.is_dir():
         if (path / "metadata.yaml").exists():
+            mcaps = sorted(path.glob("*.mcap"))
+            if len(mcaps) == 1 and not list(path.glob("*.db3")):
+                # a single-file MCAP bag: the faster reader, same messages
+                return _Plan(MCAP_BACKEND, mcaps, "ros2 bag folder (mcap)")
             return _Plan("rosbags", [path], "ros2 bag folder")
         bags = sorted(path.glob("*.bag"))
         if bags:
