@@ -10,6 +10,7 @@ import logging
 import sys
 
 import typer
+from rich.console import Console
 from typer import Abort as _Abort
 from typer import Exit as _Exit
 
@@ -26,7 +27,7 @@ from frontdiag.errors import (
 try:  # pragma: no cover - depends on the installed typer
     from typer._click.exceptions import ClickException as _ClickException
 except ImportError:  # pragma: no cover
-    from click.exceptions import ClickException as _ClickException
+    from click.exceptions import ClickException as _ClickException  # type: ignore[assignment]
 
 EPILOG = (
     "Exit codes: 0 ok · 1 gate failed · 2 bad input, usage or config · 3 internal error · "
@@ -126,9 +127,7 @@ def main(argv: list[str] | None = None) -> int:
     return EXIT_OK
 
 
-def _err_console():  # type: ignore[no-untyped-def]
-    from rich.console import Console
-
+def _err_console() -> Console:
     return Console(stderr=True)
 
 

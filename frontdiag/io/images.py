@@ -62,7 +62,7 @@ class GrayConverter:
             raise DecodeError(self.topic, "data",
                               f"cannot decode compressed image (format {msg.format!r})")
         if img.dtype == np.uint16:
-            img = self._mono16_to_8(img)
+            img = self._mono16_to_8(img.astype(np.uint16))
         if img.ndim == 3:
             code = cv2.COLOR_BGRA2GRAY if img.shape[2] == 4 else cv2.COLOR_BGR2GRAY
             img = cv2.cvtColor(img, code)
@@ -94,7 +94,7 @@ class GrayConverter:
             dt = np.dtype(">u2") if int(msg.is_bigendian) else np.dtype("<u2")
             img16 = np.ascontiguousarray(rows).view(dt).reshape(h, w).astype(np.uint16)
             return self._mono16_to_8(img16)
-        img = rows.reshape(h, w, channels) if channels > 1 else rows
+        img: np.ndarray = rows.reshape(h, w, channels) if channels > 1 else rows
         img = np.ascontiguousarray(img)
         if code is not None:
             img = cv2.cvtColor(img, code)

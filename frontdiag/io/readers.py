@@ -78,7 +78,8 @@ class Recording(Protocol):
 
     def __enter__(self) -> Recording: ...
 
-    def __exit__(self, *exc: object) -> None: ...
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None: ...
 
 
 class _Base:
@@ -157,7 +158,7 @@ class RosbagsRecording(_Base):
             log.warning("%s", self.fault.message)
 
     def deserialize(self, raw: RawMessage) -> Any:
-        return self._reader.deserialize(raw.data, raw.key.msgtype)
+        return self._reader.deserialize(bytes(raw.data), raw.key.msgtype)
 
     def close(self) -> None:
         try:
@@ -400,7 +401,7 @@ def open_recording(path: Path | str, backend: str | None = None) -> Recording:
     name = backend or p.backend
     if name not in READERS:
         raise RecordingError(path, f"unknown reader backend {name!r}")
-    return READERS[name](path, p.files)  # type: ignore[no-any-return]
+    return READERS[name](path, p.files)
 
 
 def _short(exc: BaseException) -> str:
