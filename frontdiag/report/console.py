@@ -1,0 +1,65 @@
+"""The terminal summary of verdicts: conditions, episodes worst first, run findings, the gate."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import pandas as pd
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from frontdiag.report.json_ import condition_counts
+from frontdiag.verdicts.engine import Verdicts
+from frontdiag.verdicts.gate import GateResult
+
+_STYLE = {"fail": "bold red", "warn": "yellow", "ok": "green"}
+
+
+def reanalyse_command(recording: str, episode: pd.Series | dict[str, Any],
+                      pad_s: float = 0.5) -> str:
+    """`frontdiag analyze LOG --start A --end B` around one episode (seconds from the start)."""
+    start = max(float(episode["start_t_rel_s"]) - pad_s, 0.0)
+    end = float(episode["end_t_rel_s"]) + pad_s
+    topic = episode.get("topic") if hasattr(episode, "get") else None
+    flag = "--lidar-topic" if episode.get("sensor") == "lidar" else "--camera-topic"
+    topic_part = f" {flag} {topic}" if topic else ""
+    return f"frontdiag analyze {recording} --start {start:.1f} --end {end:.1f}{topic_part}"
+
+
+def render_console_summary(console: Console, result: Verdicts, gate_result: GateResult,
+                           reanalyse_cmd: Callable[[pd.Series], str] | None = None,
+                           max_episodes: int = 10) -> None:
+    """Print what fired, the worst episodes first (each with its re-analysis command), the gate."""
+    t = result.table
+    counts = t["verdict"].value_counts()
+    console.print(f"[bold]{len(t)} rows[/]: " + ", ".join(
+        f"[{_STYLE[k]}]{int(counts.get(k, 0))} {k}[/]" for k in ("ok", "warn", "fail")))
+    cond = {k: v for k, v in condition_counts(result).items() if v["frames"]}
+    if cond:
+        table = Table("condition", "frames", "share", "episodes", box=None, pad_edge=False)
+        for name, c in cond.items():
+            table.add_row(name, str(c["frames"]), f"{c['share']:.1%}", str(c["episodes"]))
+        console.print(table)
+    eps = result.episodes
+    if not eps.empty:
+        console.print(f"[bold]episodes[/] (worst first, {min(len(eps), max_episodes)} of "
+                      f"{len(eps)}):")
+        for _, e in eps.head(max_episodes).iterrows():
+            style = _STYLE.get(str(e["severity"]), "")
+            console.print(f"  [{style}]{e['severity']:>4}[/] {e['rule']} {escape(str(e['summary']))}",
+                          highlight=False, soft_wrap=True)
+            if reanalyse_cmd is not None:
+                console.print(f"       [dim]{escape(reanalyse_cmd(e))}[/]", highlight=False,
+                              soft_wrap=True)
+    for f in result.run_findings:
+        mark = f"[{_STYLE[f.severity]}]{f.severity}[/]" if f.fired else "[green]ok[/]"
+        console.print(f"  run {f.rule} {mark}: {escape(f.message)}", highlight=False, soft_wrap=True)
+    if gate_result.passed:
+        console.print(f"[green]gate passed[/] (fail-on {gate_result.fail_on})")
+    else:
+        console.print(f"[bold red]gate failed[/] (fail-on {gate_result.fail_on}, exit "
+                      f"{gate_result.exit_code}):")
+        for r in gate_result.reasons:
+            console.print(f"  - {escape(r)}", highlight=False, soft_wrap=True)

@@ -1,0 +1,76 @@
+"""JUnit XML: one test case per rule, failing when the rule fired at or above --fail-on.
+
+CI systems (GitLab, Jenkins, GitHub test reporters) render each failing rule with the episodes
+it found; the gate's run-level reasons (max-fraction, baseline, episode limits) form one more case.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+from frontdiag.verdicts.engine import Verdicts
+from frontdiag.verdicts.gate import GateResult
+
+_RULE_PREFIXES = ("FD-",)
+
+
+def _episode_lines(result: Verdicts, rule_id: str) -> list[str]:
+    eps = result.episodes
+    if eps.empty:
+        return []
+    mine = eps[eps["rules"].map(lambda rs: rule_id in list(rs))]
+    return [str(s) for s in mine["summary"]]
+
+
+def build_junit(result: Verdicts, gate_result: GateResult) -> ET.ElementTree:
+    suite = ET.Element("testsuite", name="frontdiag")
+    failures = 0
+    cases = 0
+    for rule in result.ruleset.rules:
+        cases += 1
+        case = ET.SubElement(suite, "testcase", classname=f"frontdiag.{rule.area or 'rules'}",
+                             name=f"{rule.id} {rule.condition}: {rule.title}")
+        if rule.scope == "run":
+            finding = next((f for f in result.run_findings if f.rule == rule.id), None)
+            lines = [finding.message] if finding else []
+            fired = bool(finding and finding.fired)
+        else:
+            lines = _episode_lines(result, rule.id)
+            fired = result.rule_frames(rule.id) > 0
+        text = "\n".join(lines)
+        if rule.id in gate_result.failed_rules:
+            failures += 1
+            n = result.rule_frames(rule.id)
+            msg = (f"{rule.condition} [{rule.severity}] on {n} frame(s) in {len(lines)} "
+                   "episode(s)" if rule.scope == "frame" else lines[0] if lines else rule.title)
+            fail = ET.SubElement(case, "failure", message=msg, type=rule.severity)
+            fail.text = f"{text}\n\nfix: {rule.text.fix}\nwrong fix: {rule.text.wrong_fix}"
+        elif fired or lines:
+            ET.SubElement(case, "system-out").text = text
+    rule_reasons = {f"{rid} " for rid in gate_result.failed_rules}
+    other = [r for r in gate_result.reasons
+             if not any(r.startswith(p) for p in rule_reasons)]
+    cases += 1
+    gate_case = ET.SubElement(suite, "testcase", classname="frontdiag.gate",
+                              name="run-level gates (max-fraction, episode limits, baseline)")
+    if other:
+        failures += 1
+        fail = ET.SubElement(gate_case, "failure", message=other[0], type="gate")
+        fail.text = "\n".join(other)
+    suite.set("tests", str(cases))
+    suite.set("failures", str(failures))
+    suite.set("errors", "0")
+    root = ET.Element("testsuites", tests=str(cases), failures=str(failures), errors="0")
+    root.append(suite)
+    return ET.ElementTree(root)
+
+
+def write_junit(path: Path, result: Verdicts, gate_result: GateResult) -> Path:
+    """Write the JUnit XML report to `path`."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tree = build_junit(result, gate_result)
+    ET.indent(tree)
+    tree.write(path, encoding="utf-8", xml_declaration=True)
+    return path

@@ -1,0 +1,365 @@
+"""Named checks: the logic a single `metric op value` clause cannot hold, registered in one dict.
+
+A rule refers to a check by name and supplies every threshold the check uses as `params` in the
+rules file, so the numbers stay data (with reasons) and users override them like any clause.
+
+Frame checks receive the rows of one topic in time order and return one boolean per row; they
+also explain a single row in words, naming the look-alike each value rules out. Run checks see
+the whole table and return one finding.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+import pandas as pd
+
+Params = Mapping[str, Any]
+
+
+def col(df: pd.DataFrame, name: str) -> np.ndarray:
+    """A column as float64 (NaN where absent or not numeric)."""
+    if name not in df.columns:
+        return np.full(len(df), np.nan)
+    return pd.to_numeric(df[name], errors="coerce").to_numpy(dtype=float, na_value=np.nan)
+
+
+def _v(row: Mapping[str, Any], name: str) -> float:
+    try:
+        return float(row.get(name, np.nan))
+    except (TypeError, ValueError):
+        return float("nan")
+
+
+def _fmt(x: float) -> str:
+    return "n/a" if np.isnan(x) else f"{x:.4g}"
+
+
+@dataclass(frozen=True)
+class RunOutcome:
+    fired: bool
+    value: float
+    message: str
+    frames: list[int] = field(default_factory=list)
+    """`frame` numbers of the rows that drive the finding (for the report)."""
+
+
+@dataclass(frozen=True)
+class Check:
+    name: str
+    summary: str
+    scope: Literal["frame", "run"]
+    sensor: Literal["camera", "lidar"]
+    metrics: tuple[str, ...]
+    params: Mapping[str, str]
+    """Param name -> kind: "number" or "choice:a|b|c"."""
+    peaks: Mapping[str, str]
+    """Metric -> which extreme is the worst in an episode: "min", "max" or "absmax"."""
+    param_metrics: Mapping[str, str] = field(default_factory=dict)
+    """Param name -> the metric it is a threshold on (for units and `frontdiag explain`)."""
+    frame: Callable[[pd.DataFrame, Params], np.ndarray] | None = None
+    explain: Callable[[Mapping[str, Any], Params], list[str]] | None = None
+    run: Callable[[pd.DataFrame, Params], RunOutcome] | None = None
+
+    def param_problem(self, name: str, value: Any) -> str | None:
+        kind = self.params.get(name)
+        if kind is None:
+            return f"check {self.name!r} has no param {name!r} (known: {', '.join(self.params)})"
+        if kind == "number":
+            ok = isinstance(value, int | float) and not isinstance(value, bool)
+            return None if ok else f"param {name!r} of check {self.name!r} must be a number"
+        choices = kind.split(":", 1)[1].split("|")
+        if value not in choices:
+            return f"param {name!r} of check {self.name!r} must be one of {choices}, got {value!r}"
+        return None
+
+
+# --- chapter 2: feature count x ratio-test rejection --------------------------------------------
+
+def _after_step(dmean: np.ndarray, step: float, frames: int) -> np.ndarray:
+    """True on each row within `frames` rows after (and at) a |d_mean_intensity| > step row."""
+    with np.errstate(invalid="ignore"):
+        jump = np.abs(dmean) > step
+    out = np.zeros(len(jump), dtype=bool)
+    for lag in range(max(int(frames), 0) + 1):
+        out[lag:] |= jump[: len(jump) - lag]
+    return out
+
+
+def _matching_table(df: pd.DataFrame, p: Params) -> np.ndarray:
+    kp = col(df, "n_keypoints")
+    rej = col(df, "ratio_reject_rate")
+    with np.errstate(invalid="ignore"):
+        near_step = _after_step(col(df, "d_mean_intensity"), p["dmean_step"], p["recovery_frames"])
+        return (kp >= p["kp_floor"]) & (rej >= p["reject_repetitive"]) & ~near_step
+
+
+def _matching_table_explain(row: Mapping[str, Any], p: Params) -> list[str]:
+    kp, rej = _v(row, "n_keypoints"), _v(row, "ratio_reject_rate")
+    dm = _v(row, "d_mean_intensity")
+    out = []
+    if np.isnan(kp):
+        return ["n_keypoints not computable: the chapter 2 table cannot be read"]
+    if kp < p["kp_floor"]:
+        out.append(f"n_keypoints {_fmt(kp)} < {p['kp_floor']:g}: detection failed (lesson: ~120 "
+                   "features); repetitive structure ruled out, whatever the rejection rate")
+        return out
+    out.append(f"n_keypoints {_fmt(kp)} >= {p['kp_floor']:g}: detection_failure ruled out "
+               "(features are fine)")
+    if np.isnan(rej):
+        out.append("ratio_reject_rate not computable (no previous frame)")
+    elif rej >= p["reject_repetitive"]:
+        out.append(f"ratio_reject_rate {rej:.0%} >= {p['reject_repetitive']:.0%}: the ratio test "
+                   "refuses ambiguous candidates (repetitive ~85%)")
+    else:
+        out.append(f"ratio_reject_rate {rej:.0%} < {p['reject_repetitive']:.0%}: "
+                   "repetitive_structure ruled out (healthy ~30%, exposure step ~55%)")
+    if not np.isnan(dm) and abs(dm) > p["dmean_step"]:
+        out.append(f"|d_mean_intensity| {abs(dm):.1f} > {p['dmean_step']:g}: an exposure step; "
+                   f"a rejection spike within {p['recovery_frames']:g} frames is the step's")
+    return out
+
+
+# --- chapter 4: exposure step -------------------------------------------------------------------
+
+def _exposure_step(df: pd.DataFrame, p: Params) -> np.ndarray:
+    dm = np.abs(col(df, "d_mean_intensity"))
+    res = col(df, "photo_residual_med")
+    rej = col(df, "ratio_reject_rate")
+    with np.errstate(invalid="ignore"):
+        disturbed = (res >= p["residual_step"]) | (np.isnan(res) & (rej >= p["reject_exposure"]))
+        prev_res = np.concatenate([[np.nan], res[:-1]])
+        clean_before = ~(prev_res >= p["residual_step"])
+        step = (dm > p["dmean_step"]) & disturbed & clean_before
+    out = step.copy()
+    # the frames right after a step belong to it while they are still disturbed (2-3 frames)
+    for i in np.flatnonzero(step).tolist():
+        for j in range(i + 1, min(i + int(p["recovery_frames"]), len(out))):
+            if not disturbed[j]:
+                break
+            out[j] = True
+    return out
+
+
+def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
+    dm, res = _v(row, "d_mean_intensity"), _v(row, "photo_residual_med")
+    gain = _v(row, "affine_gain")
+    res_aff = _v(row, "photo_residual_affine_med")
+    out = [f"|d_mean_intensity| {_fmt(abs(dm))} vs step > {p['dmean_step']:g} grey levels",
+           f"photo_residual_med {_fmt(res)} vs >= {p['residual_step']:g} (healthy ~4, step 20-25)"]
+    if not np.isnan(gain):
+        out.append(f"affine_gain {gain:.3f} (1.0 = no gain change; a 20% step is 1.2)")
+    if not np.isnan(res_aff) and not np.isnan(res):
+        verdict = ("the affine model absorbs it: a brightness change, not blur"
+                   if res_aff < p["residual_step"] <= res else "")
+        out.append(f"residual after the affine model {res_aff:.1f} {verdict}".rstrip())
+    out.append("motion blur ruled out only if the residual was clean on the frame before "
+               "(blur degrades over several frames; a step is one frame wide)")
+    return out
+
+
+# --- chapter 6: H/E x parallax quadrants -------------------------------------------------------
+
+def _quadrant(he: np.ndarray, par: np.ndarray, p: Params) -> np.ndarray:
+    """0 healthy, 1 nearly stationary, 2 planar, 3 pure rotation, -1 not computable."""
+    q = np.full(len(he), -1)
+    ok = ~np.isnan(he) & ~np.isnan(par)
+    degenerate = he > p["he_degenerate"]
+    low = par < p["parallax_split_deg"]
+    q[ok & ~degenerate & ~low] = 0
+    q[ok & ~degenerate & low] = 1
+    q[ok & degenerate & ~low] = 2
+    q[ok & degenerate & low] = 3
+    return q
+
+
+def _he_parallax(df: pd.DataFrame, p: Params) -> np.ndarray:
+    with np.errstate(invalid="ignore"):
+        q = _quadrant(col(df, "h_over_e"), col(df, "parallax_med_deg"), p)
+    return q == (3 if p["want"] == "pure_rotation" else 2)
+
+
+_QUADRANT_WORDS = {
+    -1: "quadrant unknown: h_over_e or parallax_med_deg not computable",
+    0: "healthy quadrant (H/E low, parallax high): the normal operating point",
+    1: "nearly stationary with 3D structure (H/E low, parallax low): safe, triangulate nothing yet",
+    2: "planar quadrant (H/E high, parallax high): decompose H instead of E",
+    3: "pure-rotation quadrant (H/E high, parallax low): do not estimate t, do not triangulate",
+}
+
+
+def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
+    he, par = _v(row, "h_over_e"), _v(row, "parallax_med_deg")
+    with np.errstate(invalid="ignore"):
+        q = int(_quadrant(np.array([he]), np.array([par]), p)[0])
+    out = [f"h_over_e {_fmt(he)} (degenerate > {p['he_degenerate']:g}; general 3D < 0.5), "
+           f"parallax_med_deg {_fmt(par)} (split at {p['parallax_split_deg']:g}: "
+           "rotation < 0.1, plane 2-3)", _QUADRANT_WORDS[q]]
+    if q == 3:
+        out.append(f"planar_degeneracy ruled out by parallax {par:.3g} deg < "
+                   f"{p['parallax_split_deg']:g}")
+    elif q == 2:
+        out.append(f"pure_rotation ruled out by parallax {par:.3g} deg >= "
+                   f"{p['parallax_split_deg']:g}")
+    elif q in (0, 1):
+        out.append(f"planar_degeneracy and pure_rotation ruled out by h_over_e {he:.3g} <= "
+                   f"{p['he_degenerate']:g}")
+    return out
+
+
+# --- chapter 1: clustering confirmed by the pose information matrix ----------------------------
+
+def _clustering(df: pd.DataFrame, p: Params) -> np.ndarray:
+    ent, kp, cond = col(df, "entropy_norm"), col(df, "n_keypoints"), col(df, "pose_info_cond")
+    with np.errstate(invalid="ignore"):
+        return (ent < p["entropy_alarm"]) & (kp >= p["kp_floor"]) & (cond > p["cond_confirm"])
+
+
+def _clustering_explain(row: Mapping[str, Any], p: Params) -> list[str]:
+    ent, kp, cond = (_v(row, m) for m in ("entropy_norm", "n_keypoints", "pose_info_cond"))
+    out = [f"entropy_norm {_fmt(ent)} vs alarm < {p['entropy_alarm']:g} "
+           "(uniform 1.0, acceptable 0.737, 8 cells 0.537, 4 cells 0.358)"]
+    if not np.isnan(kp) and kp < p["kp_floor"]:
+        out.append(f"n_keypoints {kp:.0f} < {p['kp_floor']:g}: few features crowd few cells; "
+                   "that is detection_failure, not clustering")
+    elif not np.isnan(kp):
+        out.append(f"detection_failure ruled out by n_keypoints {kp:.0f} >= {p['kp_floor']:g}")
+    if np.isnan(cond):
+        out.append("pose_info_cond not computable (no intrinsics?): clustering unconfirmed")
+    elif cond > p["cond_confirm"]:
+        out.append(f"pose_info_cond {cond:.4g} > {p['cond_confirm']:g}: yaw and sideslip are "
+                   "confusable (healthy 20-80, clustered > 3000): confirmed")
+    else:
+        out.append(f"pose_info_cond {cond:.4g} <= {p['cond_confirm']:g}: the pose stays "
+                   "well constrained, clustering ruled out as a cause of drift")
+    return out
+
+
+# --- chapter 3 / 7: RANSAC starvation -----------------------------------------------------------
+
+def _ransac_starved(df: pd.DataFrame, p: Params) -> np.ndarray:
+    req, ran = col(df, "ransac_iters_required"), col(df, "ransac_iters_run")
+    with np.errstate(invalid="ignore"):
+        return (ran >= 1) & (req > p["margin"] * ran)
+
+
+def _ransac_explain(row: Mapping[str, Any], p: Params) -> list[str]:
+    req, ran, w = (_v(row, m) for m in
+                   ("ransac_iters_required", "ransac_iters_run", "inlier_ratio"))
+    if np.isnan(req) or np.isnan(ran) or ran < 1:
+        return ["RANSAC iteration counts not available for this frame"]
+    ratio = req / ran
+    return [f"required {req:.0f} iterations at w = {_fmt(w)} against {ran:.0f} run: "
+            f"ratio {ratio:.2f} (starved above {p['margin']:g}); success probability is "
+            "what 1-(1-w^5)^N gives at the budget, not the confidence asked for"]
+
+
+# --- chapter 4: run-level correlation of pose increment with |d mean intensity| ----------------
+
+def pose_increment_deg(df: pd.DataFrame) -> np.ndarray:
+    """Per-row pose increment in degrees, for rows of one topic in time order.
+
+    Monocular translation has no scale, so the increment is the norm of the rotation change since
+    the previous row (against the same reference keyframe) and the change of the translation
+    direction (`t_dir_change_deg`) where that column exists.
+    """
+    rot = col(df, "rot_deg")
+    ref = col(df, "ref_frame")
+    d_rot = np.abs(np.diff(rot, prepend=np.nan))
+    same_ref = np.concatenate([[False], ref[1:] == ref[:-1]]) | np.isnan(ref)
+    d_rot[~same_ref] = np.nan
+    tdir = col(df, "t_dir_change_deg")
+    if np.all(np.isnan(tdir)):
+        return d_rot
+    inc = np.hypot(np.nan_to_num(d_rot), np.nan_to_num(tdir))
+    inc[np.isnan(d_rot) & np.isnan(tdir)] = np.nan
+    return inc
+
+
+def _pose_intensity_corr(df: pd.DataFrame, p: Params) -> RunOutcome:
+    cams = df[df["sensor"] == "camera"] if "sensor" in df.columns else df
+    incs, dms, frames = [], [], []
+    keys = ["topic"] if "topic" in cams.columns else []
+    groups = cams.groupby(keys, sort=True) if keys else [((), cams)]
+    for _, g in groups:
+        g = g.sort_values("t_ns", kind="stable") if "t_ns" in g.columns else g
+        incs.append(pose_increment_deg(g))
+        dms.append(np.abs(col(g, "d_mean_intensity")))
+        frames.append(col(g, "frame"))
+    if not incs:
+        return RunOutcome(False, float("nan"), "no camera rows")
+    inc, dm, fr = np.concatenate(incs), np.concatenate(dms), np.concatenate(frames)
+    ok = ~np.isnan(inc) & ~np.isnan(dm)
+    n = int(ok.sum())
+    steps = ok & (dm > p["dmean_step"])
+    if n < p["min_frames"]:
+        return RunOutcome(False, float("nan"),
+                          f"only {n} frames with both a pose increment and a mean-intensity "
+                          f"change (needs {p['min_frames']:g})")
+    if not steps.any():
+        return RunOutcome(False, float("nan"),
+                          f"no frame with |d_mean_intensity| > {p['dmean_step']:g}: nothing to "
+                          "correlate, brightness constancy held")
+    x, y = inc[ok], dm[ok]
+    r = float(np.corrcoef(x, y)[0, 1]) if x.std() > 0 and y.std() > 0 else 0.0
+    spike = [int(f) for f in fr[steps] if not np.isnan(f)]
+    fired = r > p["r_alarm"]
+    word = "exposure steps move the pose" if fired else "pose does not follow the steps"
+    return RunOutcome(fired, r, f"corr(pose increment, |d_mean_intensity|) = {r:.2f} over {n} "
+                      f"frames, alarm > {p['r_alarm']:g}: {word}", spike[:20])
+
+
+_NUM = "number"
+CHECKS: dict[str, Check] = {c.name: c for c in [
+    Check("matching_table", "chapter 2 table: repetitive structure is ~85% ratio-test rejection "
+          "with the features intact (not ~120 features: detection failure) and not inside the "
+          "2-3 frames after an exposure step (~55%, recovering)", "frame", "camera",
+          ("n_keypoints", "ratio_reject_rate", "d_mean_intensity"),
+          {"kp_floor": _NUM, "reject_repetitive": _NUM, "dmean_step": _NUM, "recovery_frames": _NUM},
+          {"n_keypoints": "min", "ratio_reject_rate": "max"},
+          {"kp_floor": "n_keypoints", "reject_repetitive": "ratio_reject_rate",
+           "dmean_step": "d_mean_intensity"},
+          frame=_matching_table, explain=_matching_table_explain),
+    Check("exposure_step", "chapter 4: a one-frame jump of mean intensity with the photometric "
+          "residual jumping with it, clean before; the 2-3 disturbed frames after belong to it",
+          "frame", "camera",
+          ("d_mean_intensity", "photo_residual_med", "ratio_reject_rate", "affine_gain"),
+          {"dmean_step": _NUM, "residual_step": _NUM, "reject_exposure": _NUM,
+           "recovery_frames": _NUM},
+          {"d_mean_intensity": "absmax", "photo_residual_med": "max", "affine_gain": "absdev1"},
+          {"dmean_step": "d_mean_intensity", "residual_step": "photo_residual_med",
+           "reject_exposure": "ratio_reject_rate"},
+          frame=_exposure_step, explain=_exposure_explain),
+    Check("he_parallax_quadrant", "chapter 6: H/E inlier ratio x median parallax separates pure "
+          "rotation, a planar scene, a nearly stationary camera and healthy motion",
+          "frame", "camera", ("h_over_e", "parallax_med_deg"),
+          {"want": "choice:pure_rotation|planar_degeneracy", "he_degenerate": _NUM,
+           "parallax_split_deg": _NUM},
+          {"h_over_e": "max", "parallax_med_deg": "min"},
+          {"he_degenerate": "h_over_e", "parallax_split_deg": "parallax_med_deg"},
+          frame=_he_parallax, explain=_he_parallax_explain),
+    Check("clustering", "chapter 1: low keypoint entropy with enough features, confirmed by the "
+          "condition number of the pose information matrix",
+          "frame", "camera", ("entropy_norm", "n_keypoints", "pose_info_cond"),
+          {"entropy_alarm": _NUM, "kp_floor": _NUM,
+           "cond_confirm": _NUM},
+          {"entropy_norm": "min", "pose_info_cond": "max"},
+          {"entropy_alarm": "entropy_norm", "kp_floor": "n_keypoints",
+           "cond_confirm": "pose_info_cond"},
+          frame=_clustering, explain=_clustering_explain),
+    Check("ransac_starved", "chapters 3 and 7: the iterations the measured inlier ratio requires "
+          "exceed the iterations run, so the frame is untrusted", "frame", "camera",
+          ("ransac_iters_required", "ransac_iters_run", "inlier_ratio"), {"margin": _NUM},
+          {"ransac_iters_required": "max", "inlier_ratio": "min"},
+          {"margin": "ransac_iters_required"},
+          frame=_ransac_starved, explain=_ransac_explain),
+    Check("pose_intensity_correlation", "chapter 4: correlation over the run of the pose-increment "
+          "norm with |d_mean_intensity|; near zero when brightness constancy holds", "run",
+          "camera", ("rot_deg", "ref_frame", "t_dir_change_deg", "d_mean_intensity"),
+          {"r_alarm": _NUM, "min_frames": _NUM, "dmean_step": _NUM}, {},
+          {"dmean_step": "d_mean_intensity"},
+          run=_pose_intensity_corr),
+]}

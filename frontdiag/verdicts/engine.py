@@ -1,0 +1,259 @@
+"""Evaluate a ruleset over the per-frame table: per-row verdicts, episodes, run findings.
+
+Rules see the rows of one (sensor, topic) in time order, because persistence windows and the
+exposure-step check need neighbours. A frame hit survives persistence only where at least k of
+some n consecutive rows containing it hit, which removes blips without stretching episodes.
+Consecutive hits of one condition merge into an episode per topic; a gap of up to
+`max_gap_frames` clean rows (rules/run.toml, default 1) does not split an episode.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from frontdiag.conditions import CONDITIONS
+from frontdiag.verdicts.checks import CHECKS, RunOutcome, col
+from frontdiag.verdicts.loader import Ruleset
+from frontdiag.verdicts.model import SEVERITY_RANK, Rule
+from frontdiag.verdicts.operators import apply
+
+log = logging.getLogger(__name__)
+
+VERDICT_COLUMNS = ("conditions", "rules", "verdict")
+_CLAUSE_PEAK = {"<": "min", "<=": "min", ">": "max", ">=": "max"}
+_PEAK_WORD = {"absmax": "peak", "absdev1": "peak"}
+
+
+@dataclass(frozen=True)
+class RunFinding:
+    rule: str
+    condition: str
+    severity: str
+    fired: bool
+    value: float
+    message: str
+    frames: list[int] = field(default_factory=list)
+
+
+@dataclass
+class Verdicts:
+    table: pd.DataFrame
+    """The input plus `conditions` (list), `rules` (list) and `verdict` (ok / warn / fail)."""
+    episodes: pd.DataFrame
+    run_findings: list[RunFinding]
+    ruleset: Ruleset
+    hits: dict[str, np.ndarray]
+    """Rule ID -> boolean per table row, after persistence."""
+
+    def rule_frames(self, rule_id: str) -> int:
+        return int(self.hits[rule_id].sum()) if rule_id in self.hits else 0
+
+
+def topic_groups(table: pd.DataFrame, sensor: str) -> Iterator[tuple[str, np.ndarray]]:
+    """(topic, positions in time order) for each topic of a sensor."""
+    sensors = table["sensor"].astype(str).to_numpy() if "sensor" in table.columns \
+        else np.full(len(table), "camera")
+    topics = table["topic"].astype(str).to_numpy() if "topic" in table.columns \
+        else np.full(len(table), "")
+    t = col(table, "t_ns")
+    order_key = t if not np.all(np.isnan(t)) else col(table, "frame")
+    idx = np.flatnonzero(sensors == sensor)
+    for topic in sorted(set(topics[idx])):
+        pos = idx[topics[idx] == topic]
+        yield topic, pos[np.argsort(order_key[pos], kind="stable")]
+
+
+def persist(raw: np.ndarray, k: int, n: int) -> np.ndarray:
+    """Keep raw[i] only where some window of n consecutive rows containing i holds >= k hits."""
+    m = len(raw)
+    if m == 0:
+        return raw.copy()
+    n = min(n, m)
+    counts = np.convolve(raw.astype(int), np.ones(n, dtype=int), mode="valid")
+    good = (counts >= k).astype(int)
+    covered = np.convolve(good, np.ones(n, dtype=int), mode="full")[:m] > 0
+    return raw & covered
+
+
+def rule_mask(rule: Rule, rows: pd.DataFrame) -> np.ndarray:
+    """Raw hits of one frame rule over the rows of one topic (time order), before persistence."""
+    masks = [apply(c.op, col(rows, c.metric), c.value, use_abs=c.abs) for c in rule.when]
+    if masks:
+        combined = np.logical_and.reduce(masks) if rule.combine == "all" \
+            else np.logical_or.reduce(masks)
+    else:
+        combined = np.ones(len(rows), dtype=bool)
+    if rule.check is not None:
+        chk = CHECKS[rule.check]
+        assert chk.frame is not None
+        params = {k: p.value for k, p in rule.params.items()}
+        combined = combined & np.asarray(chk.frame(rows, params), dtype=bool)
+    return combined
+
+
+def _frame_hits(table: pd.DataFrame, rules: tuple[Rule, ...]) -> dict[str, np.ndarray]:
+    hits = {r.id: np.zeros(len(table), dtype=bool) for r in rules}
+    for rule in rules:
+        for _topic, pos in topic_groups(table, rule.sensor):
+            rows = table.iloc[pos]
+            raw = rule_mask(rule, rows)
+            if rule.persistence is not None:
+                raw = persist(raw, rule.persistence.k, rule.persistence.n)
+            hits[rule.id][pos] = raw
+    return hits
+
+
+def _peak(values: np.ndarray, how: str) -> float:
+    v = values[~np.isnan(values)]
+    if v.size == 0:
+        return float("nan")
+    if how == "min":
+        return float(v.min())
+    if how == "max":
+        return float(v.max())
+    if how == "absmax":
+        return float(v[np.argmax(np.abs(v))])
+    if how == "absdev1":
+        return float(v[np.argmax(np.abs(v - 1.0))])
+    return float(np.median(v))
+
+
+def peak_spec(rule: Rule) -> dict[str, str]:
+    """Metric -> which extreme is worst, for the metrics a rule reads."""
+    spec = {c.metric: ("absmax" if c.abs else _CLAUSE_PEAK.get(c.op, "median")) for c in rule.when}
+    if rule.check is not None:
+        spec.update(CHECKS[rule.check].peaks)
+    return spec
+
+
+def _runs(hit: np.ndarray, max_gap: int) -> list[tuple[int, int]]:
+    """(first, last) index pairs of runs of True, bridging gaps of <= max_gap False values."""
+    idx = np.flatnonzero(hit)
+    if idx.size == 0:
+        return []
+    breaks = np.flatnonzero(np.diff(idx) > max_gap + 1)
+    starts = np.concatenate([[idx[0]], idx[breaks + 1]])
+    ends = np.concatenate([idx[breaks], [idx[-1]]])
+    return list(zip(starts.tolist(), ends.tolist(), strict=True))
+
+
+def _exact_int(table: pd.DataFrame, name: str, pos: int) -> int:
+    """An integer cell without a float round trip (t_ns exceeds float precision); -1 if absent."""
+    if name not in table.columns:
+        return -1
+    v = table[name].iloc[pos]
+    return -1 if pd.isna(v) else int(v)
+
+
+def _fmt(v: float) -> str:
+    return f"{v:.3g}" if abs(v) < 1000 else f"{v:.0f}"
+
+
+def _episodes(table: pd.DataFrame, rules: tuple[Rule, ...], hits: dict[str, np.ndarray],
+              t_rel: np.ndarray, max_gap: int) -> pd.DataFrame:
+    records = []
+    for cond in CONDITIONS:
+        crules = [r for r in rules if r.condition == cond]
+        if not crules:
+            continue
+        sensor = crules[0].sensor
+        for topic, pos in topic_groups(table, sensor):
+            hit = np.logical_or.reduce([hits[r.id][pos] for r in crules])
+            for a, b in _runs(hit, max_gap):
+                span = pos[a:b + 1]
+                in_ep = span[hit[a:b + 1]]
+                fired = [r for r in crules if hits[r.id][in_ep].any()]
+                worst = max(fired, key=lambda r: (SEVERITY_RANK[r.severity], -fired.index(r)))
+                peaks: dict[str, float] = {}
+                for r in fired:
+                    for metric, how in peak_spec(r).items():
+                        rows = in_ep[hits[r.id][in_ep]]
+                        peaks.setdefault(metric, _peak(col(table.iloc[rows], metric), how))
+                rec: dict[str, Any] = {
+                    "condition": cond, "rule": worst.id, "rules": [r.id for r in fired],
+                    "severity": worst.severity, "sensor": sensor, "topic": topic,
+                    "start_frame": _exact_int(table, "frame", span[0]),
+                    "end_frame": _exact_int(table, "frame", span[-1]),
+                    "start_t_ns": _exact_int(table, "t_ns", span[0]),
+                    "end_t_ns": _exact_int(table, "t_ns", span[-1]),
+                    "start_t_rel_s": float(t_rel[span[0]]), "end_t_rel_s": float(t_rel[span[-1]]),
+                    "n_frames": len(in_ep), "n_rows": len(span),
+                }
+                rec["duration_s"] = max(rec["end_t_rel_s"] - rec["start_t_rel_s"], 0.0)
+                shown = ", ".join(f"{m} {_PEAK_WORD.get(how, how)} {_fmt(peaks[m])}"
+                                  for m, how in peak_spec(worst).items()
+                                  if not np.isnan(peaks.get(m, np.nan)))
+                rec["summary"] = (f"{cond} [{worst.severity}] {topic} "
+                                  f"{rec['start_t_rel_s']:.2f}-{rec['end_t_rel_s']:.2f} s, frames "
+                                  f"{rec['start_frame']}-{rec['end_frame']} ({len(in_ep)} hit): "
+                                  f"{worst.title}" + (f"; {shown}" if shown else ""))
+                rec.update({f"peak_{m}": v for m, v in peaks.items()})
+                records.append(rec)
+    base_cols = ["condition", "rule", "rules", "severity", "sensor", "topic", "start_frame",
+                 "end_frame", "start_t_ns", "end_t_ns", "start_t_rel_s", "end_t_rel_s",
+                 "duration_s", "n_frames", "n_rows", "summary"]
+    eps = pd.DataFrame.from_records(records, columns=None if records else base_cols)
+    if eps.empty:
+        return pd.DataFrame({c: pd.Series(dtype=object) for c in base_cols})
+    peak_cols = sorted(c for c in eps.columns if c.startswith("peak_"))
+    eps = eps[base_cols + peak_cols]
+    return sort_worst_first(eps)
+
+
+def sort_worst_first(eps: pd.DataFrame) -> pd.DataFrame:
+    """Severity first, then the longest, then the earliest."""
+    if eps.empty:
+        return eps
+    rank = eps["severity"].map(SEVERITY_RANK).to_numpy(dtype=int)
+    order = np.lexsort((eps["start_t_rel_s"].to_numpy(dtype=float),
+                        -eps["n_frames"].to_numpy(dtype=int), -rank))
+    return eps.iloc[order].reset_index(drop=True)
+
+
+def relative_time(table: pd.DataFrame) -> np.ndarray:
+    """t_rel_s, or seconds since the first t_ns of the table when that column is absent."""
+    if "t_rel_s" in table.columns:
+        return col(table, "t_rel_s")
+    t = col(table, "t_ns")
+    if np.all(np.isnan(t)):
+        return np.full(len(table), np.nan)
+    return (t - np.nanmin(t)) / 1e9
+
+
+def evaluate(table: pd.DataFrame, ruleset: Ruleset) -> Verdicts:
+    """Run every rule of the ruleset over the per-frame table."""
+    out = table.drop(columns=[c for c in VERDICT_COLUMNS if c in table.columns]).copy()
+    out = out.reset_index(drop=True)
+    out.attrs = dict(table.attrs)
+    hits = _frame_hits(out, ruleset.frame_rules)
+    n = len(out)
+    conds: list[list[str]] = [[] for _ in range(n)]
+    rule_ids: list[list[str]] = [[] for _ in range(n)]
+    rank = np.zeros(n, dtype=int)
+    order = {c: i for i, c in enumerate(CONDITIONS)}
+    for rule in sorted(ruleset.frame_rules, key=lambda r: (order.get(r.condition, 99), r.id)):
+        for i in np.flatnonzero(hits[rule.id]):
+            if rule.condition not in conds[i]:
+                conds[i].append(rule.condition)
+            rule_ids[i].append(rule.id)
+            rank[i] = max(rank[i], SEVERITY_RANK[rule.severity])
+    names = {v: k for k, v in SEVERITY_RANK.items()}
+    out["conditions"] = pd.Series(conds, dtype=object)
+    out["rules"] = pd.Series(rule_ids, dtype=object)
+    out["verdict"] = [names[r] for r in rank]
+    findings = []
+    for rule in ruleset.run_rules:
+        chk = CHECKS[rule.check or ""]
+        assert chk.run is not None
+        outcome: RunOutcome = chk.run(out, {k: p.value for k, p in rule.params.items()})
+        findings.append(RunFinding(rule.id, rule.condition, rule.severity, outcome.fired,
+                                   outcome.value, outcome.message, outcome.frames))
+    episodes = _episodes(out, ruleset.frame_rules, hits, relative_time(out),
+                         ruleset.run.episodes.max_gap_frames)
+    return Verdicts(out, episodes, findings, ruleset, hits)
