@@ -119,18 +119,18 @@ def comparison_grids(cmp: Comparison) -> list[Grid]:
 
 
 def to_rich(grid: Grid):  # type: ignore[no-untyped-def]
-    """A rich Table (numbers right-aligned) with the notes as its caption."""
+    """A rich Table (numbers right-aligned) followed by its notes at full terminal width."""
+    from rich.console import Group
     from rich.table import Table
+    from rich.text import Text
 
-    table = Table(title=grid.title, title_justify="left", caption_justify="left",
-                  caption="\n".join(grid.notes) or None)
+    table = Table(title=grid.title, title_justify="left")
     for i, h in enumerate(grid.headers):
         numeric = i > 0 and all(_numeric(r[i]) for r in grid.rows if len(r) > i and r[i])
-        table.add_column(h, justify="right" if numeric else "left",
-                         overflow="fold")
+        table.add_column(h, justify="right" if numeric else "left", overflow="fold")
     for i, row in enumerate(grid.rows):
-        table.add_row(*row, end_section=i in grid.sections)
-    return table
+        table.add_row(*(Text(c) for c in row), end_section=i in grid.sections)
+    return Group(table, *(Text(n) for n in grid.notes))
 
 
 def _numeric(text: str) -> bool:

@@ -1,0 +1,21 @@
+"""Calibration on this machine gives positive coefficients that agree between runs."""
+
+from __future__ import annotations
+
+import math
+
+from frontdiag.budget.calibrate import calibrate
+from frontdiag.budget.targets import COEFFICIENTS
+
+
+def test_quick_calibration_is_positive_and_stable() -> None:
+    # same code path as --calibrate, fewer repeats; no wall-clock limits, only agreement
+    a, b = calibrate(repeats=3), calibrate(repeats=3)
+    assert set(a.coefficients) == set(COEFFICIENTS)
+    for name, c in a.coefficients.items():
+        other = b.coefficients[name].value
+        assert math.isfinite(c.value) and c.value > 0, name
+        assert c.how == "measured" and c.source, name
+        assert 1 / 8 < c.value / other < 8, (name, c.value, other)
+    assert a.provenance == "calibrated"
+    assert a.machine["threads"] == "1" and a.machine["hostname"]
