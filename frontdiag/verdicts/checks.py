@@ -156,8 +156,8 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
         verdict = ("the affine model absorbs it: a brightness change, not blur"
                    if res_aff < p["residual_step"] <= res else "")
         out.append(f"residual after the affine model {res_aff:.1f} {verdict}".rstrip())
-    out.append("motion blur ruled out only if the residual was clean on the frame before "
-               "(blur degrades over several frames; a step is one frame wide)")
+    out.append("look-alike motion blur: it degrades the residual over several frames, so a step "
+               "needs a clean residual on the frame before; blur also follows gyro rate")
     return out
 
 
