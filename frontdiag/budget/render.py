@@ -79,6 +79,14 @@ def _row(label: str, sensors: list[SensorBudget | None], fn: Callable[[SensorBud
     return (label, *("—" if s is None else fn(s) for s in sensors))
 
 
+def _stage_ms(key: str) -> Callable[[SensorBudget], str]:
+    return lambda s: _ms(s.stage(key).ms)
+
+
+def _delta(base: SensorBudget | None) -> Callable[[SensorBudget], str]:
+    return lambda s: "—" if base is None else f"{s.total_ms - base.total_ms:+.1f}"
+
+
 def comparison_grids(cmp: Comparison) -> list[Grid]:
     if not cmp.variants:
         return report_grids(cmp.baseline)
@@ -91,13 +99,12 @@ def comparison_grids(cmp: Comparison) -> list[Grid]:
         if not present:
             continue
         base = sensors[0]
-        rows = [_row(SHORT_NAMES.get(st.key, st.name), sensors,
-                     lambda s, k=st.key: _ms(s.stage(k).ms)) for st in present[0].stages]
+        rows = [_row(SHORT_NAMES.get(st.key, st.name), sensors, _stage_ms(st.key))
+                for st in present[0].stages]
         n_stages = len(rows)
         rows += [
             _row("Total (ms)", sensors, lambda s: _ms(s.total_ms)),
-            _row("Δ vs baseline (ms)", sensors,
-                 lambda s, b=base: "—" if b is None else f"{s.total_ms - b.total_ms:+.1f}"),
+            _row("Δ vs baseline (ms)", sensors, _delta(base)),
             _row("Period (ms)", sensors, lambda s: _ms(s.period_ms)),
             _row("Utilisation (%)", sensors, lambda s: _pct(s.utilisation)),
             _row("Margin (ms)", sensors, lambda s: _ms(s.margin_ms)),
@@ -118,7 +125,7 @@ def comparison_grids(cmp: Comparison) -> list[Grid]:
     return grids
 
 
-def to_rich(grid: Grid):  # type: ignore[no-untyped-def]
+def to_rich(grid: Grid):
     """A rich Table (numbers right-aligned) followed by its notes at full terminal width."""
     from rich.console import Group
     from rich.table import Table
@@ -168,7 +175,7 @@ def measured_grids(report: MeasuredReport) -> list[Grid]:
     headers = ("Stage", "Ratio", "Here p50 (ms)", "Here p99.9 (ms)", "p50 (ms)", "p99 (ms)",
                "p99.9 (ms)", "max (ms)")
     for s in report.sensors:
-        rows = [(st.label, f"×{st.ratio:.2f}", _ms(st.here.p50), _ms(st.here.p999),
+        rows: list[tuple[str, ...]] = [(st.label, f"×{st.ratio:.2f}", _ms(st.here.p50), _ms(st.here.p999),
                  _ms(st.target.p50), _ms(st.target.p99), _ms(st.target.p999),
                  _ms(st.target.max)) for st in (*s.stages, s.frame)]
         n_stages = len(rows)

@@ -179,7 +179,7 @@ def _cache_file() -> Path:
     return Path(root) / "frontdiag" / "budget-machine.toml"
 
 
-def _write_target(target, path: Path, header: str) -> None:  # type: ignore[no-untyped-def]
+def _write_target(target, path: Path, header: str) -> None:
     from frontdiag.budget.targets import target_to_toml
     from frontdiag.errors import ConfigError
 
@@ -227,7 +227,7 @@ def _calibrate(o: dict) -> int:
     return 0
 
 
-def _machine(o: dict):  # type: ignore[no-untyped-def]
+def _machine(o: dict):
     """This machine's coefficients: --machine FILE, the cache, or a calibration now."""
     from frontdiag.budget.calibrate import calibrate, machine_info
     from frontdiag.budget.targets import load_target
@@ -251,7 +251,7 @@ def _machine(o: dict):  # type: ignore[no-untyped-def]
     return target, f"calibrated in this run ({o['repeats']} repeats), cached in {cache}"
 
 
-def _measured(o: dict, workload, target) -> int:  # type: ignore[no-untyped-def]
+def _measured(o: dict, workload, target) -> int:
     from frontdiag.budget import measured, render
     from frontdiag.errors import EXIT_GATE, EXIT_OK, ConfigError
 
