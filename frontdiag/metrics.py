@@ -34,6 +34,8 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
     _M("entropy_norm", "ratio", "camera",
        "keypoint spatial entropy over an 8x6 grid divided by log2(48); >0.74 ok, <0.6 alarm", "higher"),
     _M("occupied_cells", "count", "camera", "cells of the 8x6 grid holding at least one keypoint", "higher"),
+    _M("n_weak_keypoints", "count", "camera",
+       "keypoints from the low-threshold FAST retry (t=7) in cells empty at t=20; many = low contrast"),
     # --- camera: matching (against the previous frame)
     _M("n_putative", "count", "camera", "query features with two candidate neighbours", "higher"),
     _M("ratio_reject_rate", "ratio", "camera",
@@ -42,6 +44,12 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
     # --- camera: geometry (against the reference keyframe)
     _M("ref_frame", "", "camera", "frame index of the reference keyframe"),
     _M("n_ref_matches", "count", "camera", "correspondences with the reference keyframe", "higher"),
+    _M("tracked_share", "ratio", "camera",
+       "correspondences with the reference / those in the first frame after it; <0.9 -> new keyframe",
+       "higher"),
+    _M("keyframe_reason", "", "camera",
+       "why this frame became the reference for the next ones (first_frame, lost, max_frames, "
+       "tracked_share, parallax), empty if it did not"),
     _M("inliers_e", "count", "camera", "essential-matrix inliers (USAC_MAGSAC)", "higher"),
     _M("inliers_h", "count", "camera", "homography inliers on the same correspondences", "none"),
     _M("h_over_e", "ratio", "camera",

@@ -1,0 +1,238 @@
+"""ORB features with grid bucketing and the adaptive per-cell FAST threshold, plus spatial entropy.
+
+ORB-SLAM's extractor, built from OpenCV pieces so that the pyramid is computed once:
+
+1. an 8-level pyramid at scale 1.2, each level resized from the one above it;
+2. per level, FAST at ``fast_threshold`` (20); every bucketing cell that yields nothing is re-run
+   at ``fast_threshold_min`` (7) — weak features in the right place beat strong ones in the wrong
+   place (lesson, chapter 1);
+3. the level's share of the feature budget is proportional to its area (0.6944**level), and is
+   spread over the cells round-robin: every cell gives its best corner, then its second best, ...
+   until the budget is spent (a per-cell cap that adapts to how many cells have corners);
+4. orientation by intensity centroid on the unblurred level, descriptors by OpenCV's ORB on the
+   same level image (it blurs and samples the rotated BRIEF pattern).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from operator import attrgetter
+
+import cv2
+import numpy as np
+
+ENTROPY_GRID = (8, 6)  # (cols, rows), fixed by the metric's definition
+PATCH_SIZE = 31
+HALF_PATCH = PATCH_SIZE // 2
+EDGE = 19  # ORB-SLAM's EDGE_THRESHOLD: the rotated 31x31 patch plus blur stays inside the level
+
+
+def spatial_entropy(xy: np.ndarray, width: int, height: int,
+                    grid: tuple[int, int] = ENTROPY_GRID) -> tuple[float, int]:
+    """Normalised Shannon entropy of keypoint positions over a ``cols x rows`` grid.
+
+    Returns ``(H / log2(cols*rows), occupied_cells)``; NaN when there are no keypoints.
+    Uniform -> 1.0; everything in one cell -> 0.0.
+    """
+    cols, rows = grid
+    if len(xy) == 0 or width <= 0 or height <= 0:
+        return float("nan"), 0
+    cx = np.clip((xy[:, 0] * (cols / width)).astype(np.intp), 0, cols - 1)
+    cy = np.clip((xy[:, 1] * (rows / height)).astype(np.intp), 0, rows - 1)
+    counts = np.bincount(cy * cols + cx, minlength=cols * rows)
+    return entropy_from_counts(counts), int(np.count_nonzero(counts))
+
+
+def entropy_from_counts(counts: np.ndarray) -> float:
+    """H / Hmax for a histogram of cell counts (Hmax = log2 of the number of cells)."""
+    counts = np.asarray(counts, dtype=np.float64).ravel()
+    total = counts.sum()
+    if total <= 0 or counts.size < 2:
+        return float("nan")
+    p = counts[counts > 0] / total
+    return float(-(p * np.log2(p)).sum() / math.log2(counts.size))
+
+
+def level_budgets(n_features: int, n_levels: int, scale_factor: float) -> list[int]:
+    """Features per pyramid level, proportional to level area; the remainder goes to the top.
+
+    1000 features, 8 levels, 1.2 -> 323, 224, 156, 108, 75, 52, 36, 26 (lesson, chapter 1).
+    """
+    f = 1.0 / (scale_factor * scale_factor)
+    shares = [f**i for i in range(n_levels)]
+    total = sum(shares)
+    out = [round(n_features * s / total) for s in shares[:-1]]
+    out.append(max(n_features - sum(out), 0))
+    return out
+
+
+@dataclass(frozen=True)
+class Features:
+    """Keypoints of one frame in level-0 pixel coordinates, with ORB descriptors."""
+
+    xy: np.ndarray  # (N, 2) float32
+    octave: np.ndarray  # (N,) int16
+    response: np.ndarray  # (N,) float32
+    angle: np.ndarray  # (N,) float32, degrees
+    des: np.ndarray  # (N, 32) uint8
+    n_weak: int = 0  # keypoints that came from the low-threshold retry
+
+    def __len__(self) -> int:
+        return len(self.xy)
+
+    @staticmethod
+    def empty() -> Features:
+        return Features(np.zeros((0, 2), np.float32), np.zeros(0, np.int16),
+                        np.zeros(0, np.float32), np.zeros(0, np.float32),
+                        np.zeros((0, 32), np.uint8))
+
+
+def _circle_weights() -> tuple[np.ndarray, np.ndarray]:
+    """x and y moment weights over ORB's circular 31x31 patch, flattened."""
+    r = np.arange(-HALF_PATCH, HALF_PATCH + 1, dtype=np.float32)
+    xs, ys = np.meshgrid(r, r)
+    inside = (xs * xs + ys * ys) <= HALF_PATCH * HALF_PATCH + HALF_PATCH  # ORB's umax disc
+    return (xs * inside).ravel(), (ys * inside).ravel()
+
+
+_RESPONSE = attrgetter("response")
+_WX, _WY = _circle_weights()
+_W = np.stack([_WX, _WY], axis=1)  # (961, 2)
+
+
+def ic_angles(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """ORB orientation by intensity centroid, theta = atan2(m01, m10), in degrees [0, 360)."""
+    if len(x) == 0:
+        return np.zeros(0, np.float32)
+    win = np.lib.stride_tricks.sliding_window_view(img, (PATCH_SIZE, PATCH_SIZE))
+    patches = win[y - HALF_PATCH, x - HALF_PATCH].reshape(len(x), -1).astype(np.float32)
+    m = patches @ _W
+    ang = np.degrees(np.arctan2(m[:, 1], m[:, 0]))
+    return np.mod(ang, 360.0).astype(np.float32)
+
+
+def _select_spread(cell: np.ndarray, response: np.ndarray, budget: int) -> np.ndarray:
+    """Indices of up to ``budget`` keypoints, round-robin over cells by descending response.
+
+    Every cell gives its best corner, then every cell its second best, and so on; within the
+    last round the stronger corners go first. Responses are FAST scores (integers below 256).
+    """
+    n = len(cell)
+    if n <= budget:
+        return np.arange(n)
+    weak = (255 - np.clip(response, 0, 255)).astype(np.int64)
+    order = np.argsort(cell.astype(np.int64) * 256 + weak)
+    sc = cell[order]
+    starts = np.flatnonzero(np.r_[True, sc[1:] != sc[:-1]])
+    rank = np.arange(n) - np.repeat(starts, np.diff(np.r_[starts, n]))
+    cum = np.cumsum(np.bincount(rank))
+    last = int(np.searchsorted(cum, budget))  # the round in which the budget runs out
+    full = order[rank < last]
+    tier = np.flatnonzero(rank == last)
+    need = budget - len(full)
+    best = tier[np.argsort(weak[order[tier]], kind="stable")[:need]]
+    return np.concatenate([full, order[best]])
+
+
+class OrbExtractor:
+    """Bucketed ORB with the adaptive per-cell FAST threshold; one pyramid per frame."""
+
+    def __init__(self, n_features: int = 1000, n_levels: int = 8, scale_factor: float = 1.2,
+                 fast_threshold: int = 20, fast_threshold_min: int = 7,
+                 grid_cols: int = 8, grid_rows: int = 6) -> None:
+        self.n_levels = n_levels
+        self.scale_factor = scale_factor
+        self.budgets = level_budgets(n_features, n_levels, scale_factor)
+        self.grid = (grid_cols, grid_rows)
+        self._fast = cv2.FastFeatureDetector_create(fast_threshold, True)
+        self._fast_min = cv2.FastFeatureDetector_create(fast_threshold_min, True)
+        self._orb = cv2.ORB_create(nfeatures=n_features, scaleFactor=scale_factor, nlevels=1,
+                                   edgeThreshold=EDGE, patchSize=PATCH_SIZE)
+
+    def pyramid(self, gray: np.ndarray) -> list[np.ndarray]:
+        h, w = gray.shape
+        levels = [gray]
+        for lv in range(1, self.n_levels):
+            s = self.scale_factor**lv
+            size = (round(w / s), round(h / s))
+            if min(size) <= 2 * EDGE + 2:
+                break
+            levels.append(cv2.resize(levels[-1], size, interpolation=cv2.INTER_LINEAR))
+        return levels
+
+    def _detect_level(self, img: np.ndarray, budget: int
+                      ) -> tuple[list, np.ndarray, np.ndarray, int]:
+        """Chosen keypoint objects of one level, their xy and FAST score, and the weak count."""
+        h, w = img.shape
+        x0, y0, x1, y1 = EDGE, EDGE, w - EDGE, h - EDGE
+        cols, rows = self.grid
+        cw, ch = (x1 - x0) / cols, (y1 - y0) / rows
+
+        def candidates(det: cv2.FastFeatureDetector, mask: np.ndarray | None = None
+                       ) -> tuple[list, np.ndarray, np.ndarray]:
+            kps = det.detect(img, mask)
+            if not kps:
+                return [], np.zeros((0, 2), np.float32), np.zeros(0, np.intp)
+            xy = cv2.KeyPoint_convert(kps).reshape(-1, 2)
+            ok = (xy[:, 0] >= x0) & (xy[:, 0] < x1) & (xy[:, 1] >= y0) & (xy[:, 1] < y1)
+            cx = np.clip(((xy[:, 0] - x0) / cw).astype(np.intp), 0, cols - 1)
+            cy = np.clip(((xy[:, 1] - y0) / ch).astype(np.intp), 0, rows - 1)
+            cell = np.where(ok, cy * cols + cx, -1)
+            return list(kps), xy, cell
+
+        kps, xy, cell = candidates(self._fast)
+        empty = np.flatnonzero(np.bincount(cell[cell >= 0], minlength=cols * rows) == 0)
+        n_strong = len(kps)
+        if empty.size:
+            # Retry the empty cells at the low threshold; one masked call per level.
+            mask = np.zeros_like(img)
+            for c in empty.tolist():
+                cy, cx = divmod(c, cols)
+                mask[int(y0 + cy * ch) - 3:int(y0 + (cy + 1) * ch) + 3,
+                     int(x0 + cx * cw) - 3:int(x0 + (cx + 1) * cw) + 3] = 255
+            wk, wxy, wcell = candidates(self._fast_min, mask)
+            wcell = np.where(np.isin(wcell, empty), wcell, -1)
+            kps += wk
+            xy = np.concatenate([xy, wxy])
+            cell = np.concatenate([cell, wcell])
+        valid = np.flatnonzero(cell >= 0)
+        if valid.size == 0:
+            return [], np.zeros((0, 2), np.float32), np.zeros(0, np.float32), 0
+        response = np.fromiter(map(_RESPONSE, kps), np.float32, len(kps))[valid]
+        pick = _select_spread(cell[valid], response, budget)
+        chosen = valid[pick]
+        n_weak = int(np.count_nonzero(chosen >= n_strong))
+        return [kps[i] for i in chosen.tolist()], xy[chosen], response[pick], n_weak
+
+    def detect_and_compute(self, gray: np.ndarray) -> Features:
+        """Detect, orient and describe; never raises on blank or tiny images."""
+        if gray.ndim != 2 or min(gray.shape) <= 2 * EDGE + 2:
+            return Features.empty()
+        gray = np.ascontiguousarray(gray)
+        parts: list[tuple[np.ndarray, ...]] = []
+        n_weak = 0
+        for lv, img in enumerate(self.pyramid(gray)):
+            kps, xy, resp, weak = self._detect_level(img, self.budgets[lv])
+            if not kps:
+                continue
+            ang = ic_angles(img, np.rint(xy[:, 0]).astype(np.intp),
+                            np.rint(xy[:, 1]).astype(np.intp))
+            for k, a in zip(kps, ang.tolist(), strict=True):
+                k.angle = a
+            kps_out, des = self._orb.compute(img, kps)
+            if des is None or not kps_out:
+                continue
+            if len(kps_out) != len(kps):  # ORB dropped some near the border: re-read them
+                xy = cv2.KeyPoint_convert(kps_out).reshape(-1, 2)
+                resp = np.array([k.response for k in kps_out], np.float32)
+                ang = np.array([k.angle for k in kps_out], np.float32)
+                weak = min(weak, len(kps_out))
+            scale = np.float32(self.scale_factor**lv)
+            parts.append((xy * scale, np.full(len(xy), lv, np.int16), resp, ang, des))
+            n_weak += weak
+        if not parts:
+            return Features.empty()
+        xy_all, oct_all, resp_all, ang_all, des_all = (np.concatenate(c) for c in zip(*parts, strict=True))
+        return Features(xy_all.astype(np.float32), oct_all, resp_all, ang_all,
+                        np.ascontiguousarray(des_all), n_weak)

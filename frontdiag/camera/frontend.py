@@ -1,0 +1,263 @@
+"""The camera frontend, one call per frame: detect, match, verify geometry, check photometry.
+
+Matching statistics are always against the previous frame (unguided, global). Geometry is
+against a reference keyframe; correspondences with it come from feature tracks carried by
+chaining frame-to-frame matches, so no second full matching is needed. Tracks broken by one
+missed frame-to-frame match are re-linked by matching only the keyframe features that lost
+their track against only the current features that have none (a small sub-matrix).
+
+Keyframe policy (lesson, chapter 6), decided after each frame; the frame that triggers it
+becomes the reference of the frames that follow:
+
+* ``lost``          — fewer than ``min_correspondences`` correspondences with the reference;
+* ``max_frames``    — ``kf_max_frames`` (20) frames have passed since the reference;
+* ``tracked_share`` — tracks alive / tracks the reference established in the frame after it
+  fall below ``kf_min_tracked_share`` (0.9);
+* ``parallax``      — the median parallax reaches ``kf_parallax_deg``; 2.29 deg is a baseline
+  of 4% of the median depth (tan 2.29 deg = 0.04), the "few percent of the median tracked
+  depth" of the lesson, measured as an angle because monocular scale is unknown.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+from frontdiag.camera.features import Features, OrbExtractor, spatial_entropy
+from frontdiag.camera.geometry import (
+    E_SAMPLE,
+    ransac_iters_required,
+    ransac_iters_run,
+    two_view,
+    undistort_points,
+)
+from frontdiag.camera.matching import descriptor_signs, match
+from frontdiag.camera.photometric import photometric
+from frontdiag.records import CameraFrame, Intrinsics
+from frontdiag.timing import Clock, StageTimer
+
+NAN = float("nan")
+
+
+@dataclass(frozen=True)
+class CameraParams:
+    """Frontend parameters; the defaults are the lesson's."""
+
+    n_features: int = 1000
+    n_levels: int = 8
+    scale_factor: float = 1.2
+    fast_threshold: int = 20
+    fast_threshold_min: int = 7
+    grid_cols: int = 8  # bucketing grid (the entropy grid is fixed at 8x6)
+    grid_rows: int = 6
+    ratio: float = 0.8
+    mutual: bool = True
+    ransac_confidence: float = 0.999
+    sigma_px: float = 1.0
+    ransac_max_iters: int = 1000
+    min_correspondences: int = 15
+    kf_max_frames: int = 20
+    kf_min_tracked_share: float = 0.9
+    kf_parallax_deg: float = 2.29
+    relink_tracks: bool = True
+    seed: int = 0
+
+    def as_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass
+class _View:
+    """What is kept of a frame: features, +/-1 descriptor bits, undistorted points, tracks."""
+
+    index: int
+    gray: np.ndarray
+    feats: Features
+    signs: np.ndarray
+    und: np.ndarray  # (N, 2) undistorted pixel coordinates
+    kf_idx: np.ndarray  # (N,) index of the reference keyframe feature this one tracks, or -1
+    mean: float = NAN
+
+
+@dataclass
+class _Keyframe:
+    view: _View
+    n_base: int = 0  # tracks established in the first frame after the keyframe
+    frames: int = 0  # frames processed since it became the reference
+    last_t: np.ndarray | None = None
+
+
+def _row_template() -> dict[str, Any]:
+    return {
+        "n_keypoints": 0, "n_weak_keypoints": 0, "entropy_norm": NAN, "occupied_cells": 0,
+        "n_putative": 0, "ratio_reject_rate": NAN, "n_matches": 0,
+        "ref_frame": -1, "n_ref_matches": 0, "tracked_share": NAN,
+        "inliers_e": NAN, "inliers_h": NAN, "h_over_e": NAN, "inlier_ratio": NAN,
+        "ransac_iters_required": NAN, "ransac_iters_run": NAN, "parallax_med_deg": NAN,
+        "rot_deg": NAN, "t_dir_change_deg": NAN, "pose_info_cond": NAN,
+        "mean_intensity": NAN, "d_mean_intensity": NAN, "photo_residual_med": NAN,
+        "affine_gain": NAN, "affine_bias": NAN, "photo_residual_affine_med": NAN,
+        "keyframe_reason": "", "ms_detect": 0.0, "ms_match": 0.0, "ms_geometry": 0.0,
+        "ms_photometric": 0.0, "ms_total": 0.0, "status": "ok",
+    }
+
+
+class CameraFrontend:
+    """Stateful per-recording frontend; ``process`` returns one metrics row per frame."""
+
+    def __init__(self, params: CameraParams = CameraParams(),
+                 intrinsics: Intrinsics | None = None,
+                 clock: Clock = time.perf_counter) -> None:
+        self.params = params
+        self.intrinsics = intrinsics
+        self._clock = clock
+        self._K = None if intrinsics is None else np.asarray(intrinsics.K, np.float64)
+        self._extractor = OrbExtractor(params.n_features, params.n_levels, params.scale_factor,
+                                       params.fast_threshold, params.fast_threshold_min,
+                                       params.grid_cols, params.grid_rows)
+        self._prev: _View | None = None
+        self._kf: _Keyframe | None = None
+
+    def reset(self) -> None:
+        self._prev = None
+        self._kf = None
+
+    # ------------------------------------------------------------------ stages
+    def _detect(self, frame: CameraFrame, row: dict[str, Any]) -> _View:
+        gray = frame.gray
+        if gray.dtype != np.uint8 or gray.ndim != 2:
+            gray = np.zeros((0, 0), np.uint8) if gray.size == 0 else gray.astype(np.uint8)
+        feats = self._extractor.detect_and_compute(gray) if gray.ndim == 2 else Features.empty()
+        h, w = gray.shape[:2] if gray.ndim >= 2 else (0, 0)
+        ent, occ = spatial_entropy(feats.xy, w, h)
+        row.update(n_keypoints=len(feats), n_weak_keypoints=feats.n_weak, entropy_norm=ent,
+                   occupied_cells=occ)
+        mean = float(cv2.mean(gray)[0]) if gray.size else NAN
+        row["mean_intensity"] = mean
+        und = undistort_points(feats.xy, self.intrinsics)
+        return _View(frame.index, gray, feats, descriptor_signs(feats.des), und,
+                     np.full(len(feats), -1, np.intp), mean)
+
+    def _match(self, cur: _View, prev: _View, kf: _Keyframe, row: dict[str, Any]
+               ) -> tuple[np.ndarray, np.ndarray]:
+        p = self.params
+        m = match(cur.signs, prev.signs, p.ratio, p.mutual)
+        row.update(n_putative=m.n_putative, ratio_reject_rate=m.ratio_reject_rate,
+                   n_matches=len(m.query))
+        cur.kf_idx[m.query] = prev.kf_idx[m.train]
+        if p.relink_tracks and kf.view is not prev and len(kf.view.feats):
+            self._relink(cur, kf.view)
+        return m.query, m.train
+
+    def _relink(self, cur: _View, kfv: _View) -> None:
+        """Re-find keyframe features whose track broke, among current features without one."""
+        alive = np.zeros(len(kfv.feats), bool)
+        tracked = cur.kf_idx >= 0
+        alive[cur.kf_idx[tracked]] = True
+        lost = np.flatnonzero(~alive)
+        free = np.flatnonzero(~tracked)
+        if len(lost) < 2 or len(free) == 0:
+            return
+        p = self.params
+        m = match(cur.signs[free], kfv.signs[lost], p.ratio, p.mutual)
+        cur.kf_idx[free[m.query]] = lost[m.train]
+
+    def _geometry(self, cur: _View, kf: _Keyframe, row: dict[str, Any]) -> bool:
+        """E/H against the reference; returns whether the reference is lost."""
+        p = self.params
+        row["ref_frame"] = kf.view.index
+        sel = np.flatnonzero(cur.kf_idx >= 0)
+        n = len(sel)
+        row["n_ref_matches"] = n
+        if kf.frames == 1:
+            kf.n_base = n
+        row["tracked_share"] = n / kf.n_base if kf.n_base else NAN
+        if n < max(p.min_correspondences, E_SAMPLE):
+            row["status"] = "too_few_matches"
+            return True
+        p_ref = kf.view.und[cur.kf_idx[sel]]
+        p_cur = cur.und[sel]
+        tv = two_view(p_ref, p_cur, self._K, sigma_px=p.sigma_px,
+                      confidence=p.ransac_confidence, max_iters=p.ransac_max_iters, seed=p.seed)
+        row.update(inliers_h=tv.inliers_h)
+        if self._K is None:
+            row["status"] = "no_intrinsics"
+            return False
+        row.update(inliers_e=tv.inliers_e, h_over_e=tv.h_over_e, inlier_ratio=tv.inlier_ratio,
+                   rot_deg=tv.rot_deg, parallax_med_deg=tv.parallax_med_deg,
+                   pose_info_cond=tv.pose_info_cond,
+                   ransac_iters_required=ransac_iters_required(tv.inlier_ratio, E_SAMPLE,
+                                                               p.ransac_confidence),
+                   ransac_iters_run=ransac_iters_run(tv.inlier_ratio, p.ransac_max_iters,
+                                                     E_SAMPLE, p.ransac_confidence))
+        if not tv.ok_e:
+            row["status"] = "essential_failed"
+            return False
+        if kf.last_t is not None and tv.t_dir is not None:
+            c = float(np.clip(np.dot(kf.last_t, tv.t_dir), -1.0, 1.0))
+            row["t_dir_change_deg"] = math.degrees(math.acos(c))
+        kf.last_t = tv.t_dir
+        return False
+
+    def _photometric(self, cur: _View, prev: _View, q: np.ndarray, t: np.ndarray,
+                     row: dict[str, Any]) -> None:
+        row["d_mean_intensity"] = cur.mean - prev.mean
+        ph = photometric(prev.gray, cur.gray, prev.feats.xy[t], cur.feats.xy[q])
+        row.update(photo_residual_med=ph.residual_med, affine_gain=ph.gain,
+                   affine_bias=ph.bias, photo_residual_affine_med=ph.residual_affine_med)
+
+    def _keyframe_reason(self, lost: bool, kf: _Keyframe, row: dict[str, Any]) -> str:
+        p = self.params
+        if lost:
+            return "lost"
+        if kf.frames >= p.kf_max_frames:
+            return "max_frames"
+        share = row["tracked_share"]
+        if share == share and share < p.kf_min_tracked_share:
+            return "tracked_share"
+        par = row["parallax_med_deg"]
+        if par == par and par >= p.kf_parallax_deg:
+            return "parallax"
+        return ""
+
+    # ------------------------------------------------------------------ entry point
+    def process(self, frame: CameraFrame) -> dict[str, Any]:
+        """One metrics row for ``frame``; never raises on a frame with nothing to match."""
+        timer = StageTimer(self._clock)
+        row = _row_template()
+        with timer("detect"):
+            cur = self._detect(frame, row)
+        prev, kf = self._prev, self._kf
+        if prev is None or kf is None:
+            row["status"] = "first_frame"
+            reason = "first_frame"
+        else:
+            kf.frames += 1
+            with timer("match"):
+                q, t = self._match(cur, prev, kf, row)
+            with timer("photometric"):
+                self._photometric(cur, prev, q, t, row)
+            with timer("geometry"):
+                lost = self._geometry(cur, kf, row)
+            if len(cur.feats) < 2:
+                row["status"] = "no_features"
+            reason = self._keyframe_reason(lost, kf, row)
+        if reason:
+            cur.kf_idx = np.arange(len(cur.feats), dtype=np.intp)
+            self._kf = _Keyframe(cur)
+        row["keyframe_reason"] = reason
+        self._prev = cur
+        row.update(ms_detect=timer.ms.get("detect", 0.0), ms_match=timer.ms.get("match", 0.0),
+                   ms_geometry=timer.ms.get("geometry", 0.0),
+                   ms_photometric=timer.ms.get("photometric", 0.0), ms_total=timer.total())
+        return row
+
+
+def set_single_thread() -> None:
+    """Pin OpenCV to one thread (benchmarks and the one-core budget)."""
+    cv2.setNumThreads(1)
