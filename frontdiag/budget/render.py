@@ -133,15 +133,22 @@ def to_rich(grid: Grid):
 
     table = Table(title=grid.title, title_justify="left")
     for i, h in enumerate(grid.headers):
-        numeric = i > 0 and all(_numeric(r[i]) for r in grid.rows if len(r) > i and r[i])
-        table.add_column(h, justify="right" if numeric else "left", overflow="fold")
+        table.add_column(h, justify="right" if _numeric_column(grid, i) else "left",
+                         overflow="fold")
     for i, row in enumerate(grid.rows):
         table.add_row(*(Text(c) for c in row), end_section=i in grid.sections)
     return Group(table, *(Text(n) for n in grid.notes))
 
 
+def _numeric_column(grid: Grid, i: int) -> bool:
+    """Right-align a column when its stage rows hold numbers (summary rows may hold words)."""
+    last = max(grid.sections, default=len(grid.rows) - 1)
+    cells = [r[i] for r in grid.rows[: last + 1] if len(r) > i and r[i]]
+    return i > 0 and bool(cells) and all(_numeric(c) for c in cells)
+
+
 def _numeric(text: str) -> bool:
-    t = text.replace("%", "").replace("+", "").replace("−", "-").replace(",", "").strip()
+    t = text.replace("%", "").replace("+", "").replace("×", "").replace(",", "").strip()
     if t in ("—", ""):
         return True
     try:
@@ -157,7 +164,8 @@ def to_markdown(grid: Grid) -> str:
 
     lines = [f"**{esc(grid.title)}**", "",
              "| " + " | ".join(esc(h) for h in grid.headers) + " |",
-             "|" + "|".join("---:" if i else "---" for i in range(len(grid.headers))) + "|"]
+             "|" + "|".join("---:" if _numeric_column(grid, i) else "---"
+                            for i in range(len(grid.headers))) + "|"]
     for i, row in enumerate(grid.rows):
         cells = [esc(c) for c in row]
         if i > max(grid.sections, default=len(grid.rows)):
