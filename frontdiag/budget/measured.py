@@ -299,7 +299,9 @@ def measured_report(result_dir: Path, workload: model.Workload, target: Target,
             continue
         explicit = camera_hz if sensor == "camera" else lidar_hz
         period, source = _period(rows, manifest, sensor, explicit, default_hz)
-        sensors.append(summarise_sensor(rows, sensor, ratios, period, source))
+        summary = summarise_sensor(rows, sensor, ratios, period, source)
+        if summary.frames:
+            sensors.append(summary)
     if not sensors:
         raise RecordingError(Path(result_dir), "no camera or lidar rows with timings")
     notes = []

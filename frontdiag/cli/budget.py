@@ -129,6 +129,8 @@ def _run(o: dict) -> int:
     for s in over:
         _err(f"gate: {s.sensor} utilisation {100 * s.utilisation:.1f} % exceeds --max-util "
              f"{100 * o['max_util']:.1f} %")
+    if o["max_util"] is not None and not over:
+        _err(f"gate: within --max-util {100 * o['max_util']:.1f} %")
     return EXIT_GATE if over else EXIT_OK
 
 
@@ -267,4 +269,6 @@ def _measured(o: dict, workload, target) -> int:
     failed = measured.check_gates(report, o["max_util"], o["max_p999_ms"])
     for message in failed:
         _err("gate: " + message)
+    if (o["max_util"] is not None or o["max_p999_ms"] is not None) and not failed:
+        _err("gate: projected timings within the given limits")
     return EXIT_GATE if failed else EXIT_OK
