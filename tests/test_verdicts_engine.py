@@ -1,0 +1,282 @@
+"""The engine on hand-made tables: operators, persistence, named checks, episodes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+from test_verdicts_support import frames
+
+from frontdiag.verdicts import evaluate, load_ruleset
+from frontdiag.verdicts.engine import persist
+from frontdiag.verdicts.operators import OPERATORS, apply, check_value
+
+
+@pytest.fixture(scope="module")
+def ruleset():
+    return load_ruleset()
+
+
+def conds(result, frame: int) -> list[str]:
+    t = result.table
+    return list(t.loc[t["frame"] == frame, "conditions"].iloc[0])
+
+
+# --- operators ----------------------------------------------------------------------------------
+
+@pytest.mark.parametrize(("op", "value", "expected"), [
+    ("<", 2.0, [True, False, False, False]),
+    ("<=", 2.0, [True, True, False, False]),
+    (">", 2.0, [False, False, True, False]),
+    (">=", 2.0, [False, True, True, False]),
+    ("==", 2.0, [False, True, False, False]),
+    ("!=", 2.0, [True, False, True, False]),
+    ("between", [1.0, 2.0], [True, True, False, False]),
+    ("outside", [1.5, 2.5], [True, False, True, False]),
+    ("is_nan", None, [False, False, False, True]),
+    ("not_nan", None, [True, True, True, False]),
+])
+def test_operators_on_a_column_with_nan(op, value, expected) -> None:
+    x = np.array([1.0, 2.0, 3.0, np.nan])
+    assert apply(op, x, value).tolist() == expected
+
+
+def test_abs_clause_reads_magnitude() -> None:
+    assert apply(">", np.array([-24.0, 3.0, 9.0]), 8, use_abs=True).tolist() == [True, False, True]
+
+
+def test_operator_set_is_closed_and_values_checked() -> None:
+    assert check_value("~=", 1.0) is not None
+    assert check_value("between", [2.0, 1.0]) is not None
+    assert check_value("<", [1.0, 2.0]) is not None
+    assert check_value("is_nan", 1.0) is not None
+    assert set(OPERATORS) >= {"<", "<=", ">", ">=", "==", "!=", "between", "is_nan", "not_nan"}
+
+
+# --- persistence windows ------------------------------------------------------------------------
+
+def test_persistence_k_of_n_keeps_runs_and_drops_blips() -> None:
+    raw = np.array([0, 1, 0, 0, 0, 1, 1, 1, 0, 0, 0, 1, 0, 1, 0], dtype=bool)
+    kept = persist(raw, 3, 5)
+    assert np.flatnonzero(kept).tolist() == [5, 6, 7]
+
+
+def test_persistence_does_not_extend_an_episode() -> None:
+    raw = np.array([0, 0, 1, 1, 1, 1, 0, 0], dtype=bool)
+    assert (persist(raw, 3, 5) == raw).all()
+
+
+def test_persistence_with_gaps_inside_the_window() -> None:
+    raw = np.array([1, 0, 1, 0, 1, 0, 0, 0], dtype=bool)
+    assert persist(raw, 3, 5).tolist() == [True, False, True, False, True, False, False, False]
+    assert not persist(raw, 3, 4).any()
+
+
+def test_persistence_shorter_group_than_window() -> None:
+    assert persist(np.array([1, 1], dtype=bool), 3, 5).tolist() == [False, False]
+    assert persist(np.array([1, 1], dtype=bool), 2, 5).tolist() == [True, True]
+
+
+# --- named checks on the lesson's rows ----------------------------------------------------------
+
+def test_healthy_table_has_no_findings(ruleset) -> None:
+    res = evaluate(frames(60), ruleset)
+    assert (res.table["verdict"] == "ok").all()
+    assert res.episodes.empty
+
+
+def test_chapter2_table_repetitive_vs_detection_vs_exposure(ruleset) -> None:
+    t = frames(60, {
+        range(5, 15): {"n_keypoints": 1000, "ratio_reject_rate": 0.85},      # repetitive aisle
+        range(25, 35): {"n_keypoints": 120, "ratio_reject_rate": 0.30},      # dark / blank
+        40: {"d_mean_intensity": 24.0, "photo_residual_med": 22.0, "ratio_reject_rate": 0.55,
+             "affine_gain": 1.2},                                            # exposure step
+        41: {"ratio_reject_rate": 0.55}, 42: {"ratio_reject_rate": 0.50},     # recovers in 2-3
+    })
+    res = evaluate(t, ruleset)
+    for f in range(5, 15):
+        assert conds(res, f) == ["repetitive_structure"]
+    for f in range(25, 35):
+        assert conds(res, f) == ["detection_failure"]
+    assert conds(res, 40) == ["exposure_step"]
+    assert "repetitive_structure" not in conds(res, 41)
+    assert all(not conds(res, f) for f in (20, 45, 50))
+
+
+def test_exposure_window_keeps_a_rejection_spike_from_reading_as_repetition(ruleset) -> None:
+    # an exposure step whose rejection stays near 85% for three frames is still the step's
+    t = frames(30, {10: {"d_mean_intensity": -20.0, "photo_residual_med": 21.0,
+                         "ratio_reject_rate": 0.86},
+                    11: {"ratio_reject_rate": 0.86}, 12: {"ratio_reject_rate": 0.86}})
+    res = evaluate(t, ruleset)
+    assert "repetitive_structure" not in set().union(*map(set, res.table["conditions"]))
+    assert conds(res, 10) == ["exposure_step"]
+
+
+def test_exposure_step_needs_the_residual_to_jump_not_just_the_scene(ruleset) -> None:
+    # scene brightness changes (a bright floor enters the view) without a gain step: tracked
+    # features keep their intensity, so the photometric residual stays at ~4
+    t = frames(30, {10: {"d_mean_intensity": 12.0, "photo_residual_med": 4.2}})
+    assert conds(evaluate(t, ruleset), 10) == []
+
+
+def test_exposure_step_is_one_frame_wide_unlike_motion_blur(ruleset) -> None:
+    # blur degrades the residual over several frames: the frame before is already disturbed
+    t = frames(30, {8: {"photo_residual_med": 12.0}, 9: {"photo_residual_med": 16.0},
+                    10: {"d_mean_intensity": 9.0, "photo_residual_med": 20.0}})
+    assert conds(evaluate(t, ruleset), 10) == []
+
+
+@pytest.mark.parametrize(("he", "parallax", "expected"), [
+    (0.98, 0.04, "pure_rotation"),
+    (0.95, 2.5, "planar_degeneracy"),
+    (0.42, 2.1, None),          # healthy
+    (0.42, 0.04, None),         # nearly stationary with 3D structure: safe
+])
+def test_he_parallax_quadrants(ruleset, he, parallax, expected) -> None:
+    t = frames(20, {range(5, 15): {"h_over_e": he, "parallax_med_deg": parallax}})
+    got = conds(evaluate(t, ruleset), 10)
+    assert got == ([expected] if expected else [])
+
+
+def test_clustering_confirmed_by_pose_information(ruleset) -> None:
+    t = frames(20, {range(5, 15): {"entropy_norm": 0.36, "pose_info_cond": 5000.0}})
+    res = evaluate(t, ruleset)
+    assert conds(res, 10) == ["feature_clustering"]
+    assert "FD-CLU-001" in res.table.loc[10, "rules"]
+    assert res.table.loc[10, "verdict"] == "fail"
+
+
+def test_low_entropy_with_a_healthy_pose_is_not_clustering(ruleset) -> None:
+    t = frames(20, {range(5, 15): {"entropy_norm": 0.36, "pose_info_cond": 60.0}})
+    assert conds(evaluate(t, ruleset), 10) == []
+
+
+def test_clustering_without_intrinsics_is_an_unconfirmed_warning(ruleset) -> None:
+    t = frames(20, {range(5, 15): {"entropy_norm": 0.36, "pose_info_cond": np.nan}})
+    res = evaluate(t, ruleset)
+    assert list(res.table.loc[10, "rules"]) == ["FD-CLU-002"]
+    assert res.table.loc[10, "verdict"] == "warn"
+
+
+def test_few_clustered_features_are_a_detection_failure_not_clustering(ruleset) -> None:
+    t = frames(20, {range(5, 15): {"n_keypoints": 120, "entropy_norm": 0.3,
+                                   "pose_info_cond": 9000.0}})
+    assert conds(evaluate(t, ruleset), 10) == ["detection_failure"]
+
+
+def test_ransac_starvation_marks_the_frame(ruleset) -> None:
+    t = frames(10, {4: {"inlier_ratio": 0.14, "ransac_iters_required": 233,
+                        "ransac_iters_run": 40}})
+    res = evaluate(t, ruleset)
+    assert conds(res, 4) == ["ransac_starved"]
+    assert res.table.loc[4, "verdict"] == "fail"
+    assert conds(res, 5) == []
+
+
+def test_registration_degeneracy_on_lidar_rows_only(ruleset) -> None:
+    cam = frames(30)
+    lidar = frames(20, {range(5, 15): {"lidar_eig_min": 12.0, "lidar_cond": 1500.0,
+                                       "icp_fitness": 0.97, "icp_rmse_m": 0.021}},
+                   sensor="lidar", rate_hz=10)
+    res = evaluate(pd.concat([cam, lidar], ignore_index=True), ruleset)
+    lid = res.table[res.table["sensor"] == "lidar"]
+    hit = lid[lid["conditions"].map(len) > 0]
+    assert sorted(hit["frame"]) == list(range(5, 15))
+    assert (res.table[res.table["sensor"] == "camera"]["verdict"] == "ok").all()
+    ep = res.episodes.iloc[0]
+    assert ep["condition"] == "registration_degeneracy" and ep["sensor"] == "lidar"
+    assert ep["peak_lidar_eig_min"] == 12.0
+
+
+def test_nan_metrics_never_fire_a_threshold(ruleset) -> None:
+    t = frames(20)
+    for c in ("h_over_e", "parallax_med_deg", "pose_info_cond", "ratio_reject_rate",
+              "ransac_iters_required", "photo_residual_med", "d_mean_intensity"):
+        t[c] = np.nan
+    assert (evaluate(t, ruleset).table["verdict"] == "ok").all()
+
+
+def test_missing_columns_read_as_not_computable(ruleset) -> None:
+    t = frames(10)[["frame", "t_ns", "sensor", "topic", "n_keypoints", "status"]]
+    t.loc[3, "n_keypoints"] = 50
+    assert conds(evaluate(t, ruleset), 3) == ["detection_failure"]
+
+
+# --- run-level correlation ----------------------------------------------------------------------
+
+def test_pose_increment_correlates_with_exposure_steps(ruleset) -> None:
+    rng = np.random.default_rng(0)
+    n = 90
+    rot = np.cumsum(rng.normal(0.2, 0.02, n))
+    dmean = rng.normal(0, 0.5, n)
+    for step in (20, 50, 75):
+        dmean[step] = 20.0
+        rot[step:] += 3.0            # the pose jumps exactly at the step
+    t = frames(n)
+    t["rot_deg"], t["d_mean_intensity"] = rot, dmean
+    f = next(f for f in evaluate(t, ruleset).run_findings if f.rule == "FD-RUN-001")
+    assert f.fired and f.value > 0.9
+    assert 20 in f.frames
+
+
+def test_healthy_run_has_near_zero_correlation(ruleset) -> None:
+    rng = np.random.default_rng(1)
+    n = 90
+    t = frames(n)
+    t["rot_deg"] = np.cumsum(rng.normal(0.2, 0.05, n))
+    t["d_mean_intensity"] = rng.normal(0, 0.5, n)
+    t.loc[40, "d_mean_intensity"] = 12.0        # a step the pose ignores
+    f = next(f for f in evaluate(t, ruleset).run_findings if f.rule == "FD-RUN-001")
+    assert not f.fired and abs(f.value) < 0.5
+
+
+# --- episodes -----------------------------------------------------------------------------------
+
+def test_consecutive_frames_merge_into_one_episode_across_a_one_frame_gap(ruleset) -> None:
+    t = frames(60, {range(10, 20): {"n_keypoints": 100}, range(21, 26): {"n_keypoints": 100},
+                    range(40, 43): {"n_keypoints": 100}})
+    res = evaluate(t, ruleset)
+    eps = res.episodes
+    assert len(eps) == 2
+    first = eps.iloc[0]
+    assert (first["start_frame"], first["end_frame"], first["n_frames"]) == (10, 25, 15)
+    assert first["n_rows"] == 16
+    assert first["start_t_ns"] == int(t.loc[10, "t_ns"])      # exact, not via float
+    assert first["peak_n_keypoints"] == 100
+    assert "detection_failure" in first["summary"]
+    # the gap row itself is not marked: frame precision is unaffected
+    assert conds(res, 20) == []
+
+
+def test_two_clean_rows_split_episodes(ruleset) -> None:
+    t = frames(40, {range(10, 15): {"n_keypoints": 100}, range(17, 20): {"n_keypoints": 100}})
+    assert len(evaluate(t, ruleset).episodes) == 2
+
+
+def test_episodes_are_per_topic_and_worst_first(ruleset) -> None:
+    a = frames(40, {range(5, 10): {"ratio_reject_rate": 0.9}}, topic="/cam_left")
+    b = frames(40, {range(20, 23): {"n_keypoints": 90}, range(30, 38): {"n_keypoints": 90}},
+               topic="/cam_right")
+    res = evaluate(pd.concat([a, b], ignore_index=True), ruleset)
+    eps = res.episodes
+    assert list(eps["severity"]) == ["fail", "fail", "warn"]
+    assert list(eps["n_frames"][:2]) == [8, 3]          # longer first within a severity
+    assert set(eps["topic"]) == {"/cam_left", "/cam_right"}
+
+
+def test_rows_are_grouped_by_topic_and_time_not_table_order(ruleset) -> None:
+    t = frames(30, {range(10, 20): {"h_over_e": 0.98, "parallax_med_deg": 0.04}})
+    shuffled = t.sample(frac=1.0, random_state=3).reset_index(drop=True)
+    res = evaluate(shuffled, ruleset)
+    hit = res.table[res.table["conditions"].map(len) > 0]
+    assert sorted(hit["frame"]) == list(range(10, 20))
+
+
+def test_evaluate_keeps_input_columns_and_replaces_old_verdicts(ruleset) -> None:
+    t = frames(10)
+    t["conditions"] = [["stale"]] * 10
+    res = evaluate(t, ruleset)
+    assert list(res.table.columns[: len(t.columns) - 1]) == [c for c in t.columns
+                                                             if c != "conditions"]
+    assert all(c == [] for c in res.table["conditions"])
