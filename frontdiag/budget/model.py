@@ -312,7 +312,8 @@ def derived_numbers(w: Workload) -> dict[str, float]:
     return out
 
 
-def _footnotes(w: Workload, t: Target, camera: SensorBudget) -> tuple[str, ...]:
+def _footnotes(w: Workload, t: Target, *sensors: SensorBudget) -> tuple[str, ...]:
+    camera = sensors[0]
     notes = []
     if t.provenance == "lesson":
         ransac = camera.stage("ransac").ms
@@ -325,14 +326,15 @@ def _footnotes(w: Workload, t: Target, camera: SensorBudget) -> tuple[str, ...]:
                 "Guided matching uses chapter 2's 2.13 candidates in a 25 px window where "
                 "chapter 0's table says ~12; the comparisons cost microseconds, the per-query "
                 "overhead dominates the stage.")
-    derived = [c.name for c in t.coefficients.values() if c.how == "derived"]
+    used = {c for s in sensors for st in s.stages for c in st.coefficients}
+    derived = [c.name for c in t.coefficients.values() if c.how == "derived" and c.name in used]
     if derived:
         notes.append("Coefficients derived from a stage time and its work (not given per unit "
                       "by the source): " + ", ".join(derived) + ".")
+    cand = f.guided_candidates(w.features, w.search_radius_px, w.width, w.height)
     notes.append(
         "The margin is not slack: a dropped frame doubles the baseline, the search radius "
-        f"doubles and candidates quadruple ({derived_numbers(w)['candidates_per_query']:.2f} → "
-        f"{derived_numbers(w)['candidates_after_dropped_frame']:.2f}), which makes the next "
+        f"doubles and candidates quadruple ({cand:.2f} → {4 * cand:.2f}), which makes the next "
         "frame slower too.")
     return tuple(notes)
 
@@ -340,10 +342,11 @@ def _footnotes(w: Workload, t: Target, camera: SensorBudget) -> tuple[str, ...]:
 def budget(w: Workload, t: Target) -> BudgetReport:
     """The whole budget for one workload on one target."""
     w.validate()
-    camera = camera_budget(w, t)
+    camera, lidar = camera_budget(w, t), lidar_budget(w, t)
+    sensors = (camera,) if lidar is None else (camera, lidar)
     return BudgetReport(target=t.name, target_provenance=t.provenance, workload=w,
-                        camera=camera, lidar=lidar_budget(w, t), derived=derived_numbers(w),
-                        footnotes=_footnotes(w, t, camera))
+                        camera=camera, lidar=lidar, derived=derived_numbers(w),
+                        footnotes=_footnotes(w, t, *sensors))
 
 
 @dataclass(frozen=True)
