@@ -14,7 +14,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 Severity = Literal["warn", "fail"]
 SEVERITY_RANK: dict[str, int] = {"ok": 0, "warn": 1, "fail": 2}
 
-ParamValue = float | str | list[float]
+ParamValue = int | float | str | list[float]
 
 
 class _Strict(BaseModel):
