@@ -38,13 +38,13 @@ def register(app: typer.Typer) -> None:
         target: str = typer.Option("orin-nano", "--target", "-t",
                                    help="Target name in rules/targets, or a target .toml file."),
         camera: str | None = typer.Option(None, "--camera", help="Camera as WxH@HZ "
-                                          "[default: 1280x720@30; with --from: the recording's]"),
+                                          "(default 1280x720@30; with --from: the recording's)."),
         features: int = typer.Option(1000, "--features", help="Keypoints per frame."),
         levels: int = typer.Option(8, "--levels", help="Pyramid levels."),
         scale: float = typer.Option(1.2, "--scale", help="Pyramid scale factor."),
         matching: str | None = typer.Option(
             None, "--matching", help="guided (window around the prediction) or brute "
-            "[default: guided; with --from: the recording's, else brute]"),
+            "(default guided; with --from: the recording's, else brute)."),
         search_radius: float = typer.Option(25.0, "--search-radius",
                                             help="Guided search window radius (px)."),
         correspondences: int = typer.Option(400, "--correspondences",
