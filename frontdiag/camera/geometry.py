@@ -21,6 +21,8 @@ from frontdiag.records import Intrinsics
 CHI2_95_1DOF = 3.841
 CHI2_95_2DOF = 5.991
 E_SAMPLE = 5  # Nister's five-point solver
+TRIANGULATION_GATE_DEG = 1.0  # ORB-SLAM's parallax gate for new landmarks (chapter 6)
+MIN_TRIANGULATED_SHARE = 0.1  # below this, the few points past the gate are stray outliers
 H_SAMPLE = 4
 
 
@@ -135,55 +137,77 @@ def parallax_deg(p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray, R: np.ndar
 
 
 def pose_information_condition(p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray,
-                               R: np.ndarray, t: np.ndarray) -> float:
+                               R: np.ndarray, t: np.ndarray,
+                               min_parallax_deg: float = TRIANGULATION_GATE_DEG) -> float:
     """lambda_max / lambda_min of the 6x6 pose information J^T J at the inlier points.
 
-    Monocular scale is unknown, so the units are fixed explicitly: points are triangulated from
-    the two views and scaled so that their median depth in the reference camera is 1; the
-    translation is therefore in units of the median scene depth and the rotation in radians.
-    J is the Jacobian of the pixel reprojection in the current view with respect to a
-    left-multiplied SE(3) increment [rho, phi] (lesson, chapter 6: d(u)/d(P_c) times
-    [I | -skew(P_c)]). Points behind either camera are dropped; when the views have no usable
-    parallax at all (pure rotation), depth is unobservable and every point is put at depth 1.
+    Monocular scale is unknown, so the units are fixed explicitly: rotation in radians,
+    translation in units of the median scene depth (depths are scaled to median 1). A point's
+    depth is its two-view triangulation when its parallax clears the 1 deg triangulation gate of
+    chapter 6 and it lies in front of both cameras; otherwise its depth is not observable from
+    these two views and it is placed at the median depth of the triangulated points. When fewer
+    than six points, or fewer than 10% of them, clear the gate (pure rotation, or a baseline too
+    short to measure), the few that do are stray matches sliding along their epipolar lines:
+    every point is then put at depth 1 and the translation, which is noise, is taken as zero. J is the Jacobian of the pixel
+    reprojection in the current view with respect to a left-multiplied SE(3) increment
+    [rho, phi]: d(u, v)/d(P_c) times [I | -skew(P_c)] (lesson, chapter 6, worked example 2).
     """
     n = len(p_ref)
     if n < 6:
         return float("nan")
+    t = t.reshape(3)
+    f_ref = bearings(p_ref, K)
+    par = parallax_deg(p_ref, p_cur, K, R)
     P1 = K @ np.hstack([np.eye(3), np.zeros((3, 1))])
     P2 = K @ np.hstack([R, t.reshape(3, 1)])
-    X = cv2.triangulatePoints(P1, P2, p_ref.T.astype(np.float64), p_cur.T.astype(np.float64))
-    w = X[3]
+    Xh = cv2.triangulatePoints(P1, P2, p_ref.T.astype(np.float64), p_cur.T.astype(np.float64))
     with np.errstate(divide="ignore", invalid="ignore"):
-        X = (X[:3] / w).T
-    z1 = X[:, 2]
-    z2 = (X @ R.T + t.reshape(1, 3))[:, 2]
-    good = np.isfinite(z1) & (z1 > 0) & (z2 > 0)
-    if np.count_nonzero(good) >= 6:
-        X = X[good]
-        X = X / np.median(X[:, 2])
-        Pc = X @ R.T + t.reshape(1, 3) / np.median(z1[good])
-    else:  # no parallax: depth unobservable, put every point at unit depth along its bearing
-        f = bearings(p_ref, K)
-        Pc = (f / f[:, 2:3]) @ R.T
+        X = (Xh[:3] / Xh[3]).T
+        z1 = X[:, 2]
+        z2 = (X @ R.T + t)[:, 2]
+        good = np.isfinite(z1) & (z1 > 0) & (z2 > 0) & (par >= min_parallax_deg)
+    if np.count_nonzero(good) >= max(6, MIN_TRIANGULATED_SHARE * n):
+        scale = float(np.median(z1[good]))
+        t_s = t / scale
+    else:  # no measurable baseline: unit depths, and t (pure noise here) is taken as zero
+        scale, t_s = 1.0, np.zeros(3)
+    depth = np.where(good, z1, scale) / scale  # along the optical axis, median scene depth ~ 1
+    X = f_ref / f_ref[:, 2:3] * depth[:, None]
+    Pc = X @ R.T + t_s
     Pc = Pc[Pc[:, 2] > 1e-6]
     if len(Pc) < 6:
         return float("nan")
     fx, fy = K[0, 0], K[1, 1]
     x, y, z = Pc[:, 0], Pc[:, 1], Pc[:, 2]
     iz = 1.0 / z
-    # d(u,v)/d(P_c)
-    ju = np.column_stack([fx * iz, np.zeros_like(z), -fx * x * iz * iz])
-    jv = np.column_stack([np.zeros_like(z), fy * iz, -fy * y * iz * iz])
-
-    def rows(jp: np.ndarray) -> np.ndarray:
-        # jp @ [I | -skew(P)] ; jp @ -skew(P) = cross(P, jp) row-wise
-        return np.hstack([jp, np.cross(Pc, jp)])
-
-    J = np.vstack([rows(ju), rows(jv)])
+    zero = np.zeros_like(z)
+    ju = np.column_stack([fx * iz, zero, -fx * x * iz * iz])  # d(u)/d(P_c)
+    jv = np.column_stack([zero, fy * iz, -fy * y * iz * iz])  # d(v)/d(P_c)
+    # j @ [I | -skew(P)] = [j, P x j] row by row
+    J = np.vstack([np.hstack([ju, np.cross(Pc, ju)]), np.hstack([jv, np.cross(Pc, jv)])])
     ev = np.linalg.eigvalsh(J.T @ J)
     if ev[0] <= 0:
         return float("inf")
     return float(ev[-1] / ev[0])
+
+
+def _rotation_of_least_parallax(E: np.ndarray, R_pose: np.ndarray, p_ref: np.ndarray,
+                                p_cur: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """The rotation of E's twisted pair under which the inlier bearings agree best.
+
+    recoverPose picks between R and its twisted partner (R rotated 180 deg about t) by
+    cheirality, which is meaningless when there is no translation: t is noise and the choice
+    is a coin toss. Under any real translation the cheirality choice is also the one with the
+    smaller median parallax (the twisted partner flips bearings away from the epipole), so
+    taking the smaller one changes nothing there and fixes pure rotation.
+    """
+    R1, R2, _ = cv2.decomposeEssentialMat(E)
+    best, best_par = R_pose, float(np.median(parallax_deg(p_ref, p_cur, K, R_pose)))
+    for Rc in (R1, R2):
+        par = float(np.median(parallax_deg(p_ref, p_cur, K, Rc)))
+        if par < best_par - 1e-9:
+            best, best_par = Rc, par
+    return best
 
 
 def two_view(p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray | None, *,
@@ -208,10 +232,11 @@ def two_view(p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray | None, *,
     w = inl_e / n
     if inl_e < E_SAMPLE:
         return TwoView(n, inliers_e=float(inl_e), inliers_h=inl_h, inlier_ratio=w)
-    _, R, t, pose_mask = cv2.recoverPose(E, p_ref, p_cur, K, mask=mask.copy())
-    sel = pose_mask.ravel() > 0
-    if np.count_nonzero(sel) < E_SAMPLE:
-        sel = mask > 0
+    _, R, t, _ = cv2.recoverPose(E, p_ref, p_cur, K, mask=mask.copy())
+    # Parallax and information over all E inliers: recoverPose's cheirality mask is a coin toss
+    # under pure rotation and would leave a handful of points.
+    sel = mask > 0
+    R = _rotation_of_least_parallax(E, R, p_ref[sel], p_cur[sel], K)
     rot = float(np.degrees(np.linalg.norm(cv2.Rodrigues(R)[0])))
     par = parallax_deg(p_ref[sel], p_cur[sel], K, R)
     cond = pose_information_condition(p_ref[sel], p_cur[sel], K, R, t.ravel())

@@ -1,0 +1,92 @@
+"""The lesson's worked numbers as oracles: spatial entropy (ch. 1), RANSAC iterations and
+noise-derived thresholds (ch. 3), and the pyramid's feature budget (ch. 1)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from frontdiag.camera.features import entropy_from_counts, level_budgets, spatial_entropy
+from frontdiag.camera.geometry import (
+    epipolar_threshold_px,
+    homography_threshold_px,
+    ransac_iters_required,
+    ransac_iters_run,
+)
+
+
+@pytest.mark.parametrize(("counts", "expected"), [
+    (np.full(48, 1000 / 48), 1.000),
+    (np.r_[np.full(3, 200.0), np.full(45, 400 / 45)], 0.737),
+    (np.r_[np.full(8, 125.0), np.zeros(40)], 0.537),
+    (np.r_[np.full(4, 250.0), np.zeros(44)], 0.358),
+])
+def test_entropy_table_of_chapter_1(counts: np.ndarray, expected: float) -> None:
+    assert entropy_from_counts(counts) == pytest.approx(expected, abs=5e-4)
+
+
+def test_spatial_entropy_bins_points_on_the_8x6_grid() -> None:
+    w, h = 1280, 720
+    xs = (np.arange(8) + 0.5) * w / 8
+    ys = (np.arange(6) + 0.5) * h / 6
+    grid = np.array([(x, y) for x in xs for y in ys], np.float32)
+    uniform = np.repeat(grid, 20, axis=0)
+    assert spatial_entropy(uniform, w, h) == (pytest.approx(1.0), 48)
+    four = np.repeat(grid[:4], 250, axis=0)  # 1000 keypoints in 4 cells
+    ent, occupied = spatial_entropy(four, w, h)
+    assert ent == pytest.approx(0.358, abs=5e-4)
+    assert occupied == 4
+    ent, occupied = spatial_entropy(np.zeros((0, 2), np.float32), w, h)
+    assert math.isnan(ent) and occupied == 0
+
+
+@pytest.mark.parametrize(("s", "w", "p", "n"), [
+    (5, 0.5, 0.99, 146),
+    (5, 0.5, 0.999, 218),
+    (2, 0.4, 0.99, 27),
+    (2, 0.9, 0.99, 3),
+    (5, 0.34, 0.99, 1012),  # the threshold-set-by-feel penalty: ~1,011 in the text
+])
+def test_ransac_worked_examples(s: int, w: float, p: float, n: int) -> None:
+    assert ransac_iters_required(w, s, p) == n
+
+
+# Chapter 3's table, p = 0.99, w = 0.2 ... 0.8
+TABLE = {
+    2: [113, 49, 27, 17, 11, 7, 5],
+    3: [574, 169, 70, 35, 19, 11, 7],
+    4: [2876, 567, 178, 72, 34, 17, 9],
+    5: [14389, 1893, 448, 146, 57, 26, 12],
+    7: [359777, 21055, 2809, 588, 163, 54, 20],
+    8: [1798893, 70188, 7025, 1177, 272, 78, 26],
+}
+
+
+@pytest.mark.parametrize("s", sorted(TABLE))
+def test_ransac_table_of_chapter_3(s: int) -> None:
+    got = [ransac_iters_required(w / 10, s, 0.99) for w in range(2, 9)]
+    assert got == TABLE[s]
+
+
+def test_ransac_edge_cases_and_run_cap() -> None:
+    assert math.isnan(ransac_iters_required(float("nan")))
+    assert ransac_iters_required(0.0) == math.inf
+    assert ransac_iters_required(1.0) == 1
+    # the run count is USAC's stopping bound at the found w, capped at maxIters
+    assert ransac_iters_run(0.5, 1000, 5, 0.999) == 218
+    assert ransac_iters_run(0.2, 1000, 5, 0.999) == 1000  # starved: required 21,584
+    assert ransac_iters_required(0.2, 5, 0.999) > ransac_iters_run(0.2, 1000, 5, 0.999)
+    assert math.isnan(ransac_iters_run(float("nan"), 1000))
+
+
+def test_thresholds_derive_from_the_noise() -> None:
+    assert epipolar_threshold_px(1.0) == pytest.approx(1.96, abs=5e-3)
+    assert homography_threshold_px(1.0) == pytest.approx(2.45, abs=5e-3)
+    assert epipolar_threshold_px(0.3) == pytest.approx(0.588, abs=5e-3)
+
+
+def test_level_budget_is_area_proportional() -> None:
+    assert level_budgets(1000, 8, 1.2) == [323, 224, 156, 108, 75, 52, 36, 26]
+    assert sum(level_budgets(777, 5, 1.3)) == 777
