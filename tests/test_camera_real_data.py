@@ -1,0 +1,74 @@
+"""Checks on real third-party images from ../shared/data (skipped when it is absent)."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from frontdiag.camera.features import OrbExtractor
+from frontdiag.camera.frontend import CameraFrontend, CameraParams
+from frontdiag.camera.geometry import two_view
+from frontdiag.camera.matching import descriptor_signs, match
+from frontdiag.records import CameraFrame, Intrinsics
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+KITTI = DATA / "kitti06_pairs"
+TUM = DATA / "tum_fr3_long_office_17f"
+
+pytestmark = pytest.mark.shared_data
+
+
+def _gray(path: Path) -> np.ndarray:
+    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    assert img is not None, path
+    return img
+
+
+@pytest.mark.skipif(not KITTI.is_dir(), reason="../shared/data/kitti06_pairs absent")
+@pytest.mark.parametrize(("a", "b", "max_dir_err_deg"), [(12, 13, 3.0), (435, 436, 5.0)])
+def test_kitti_pair_matches_ground_truth(a: int, b: int, max_dir_err_deg: float) -> None:
+    K = np.array([[707.0912, 0, 601.8873], [0, 707.0912, 183.1104], [0, 0, 1]])
+    poses = np.loadtxt(KITTI / "groundtruth" / "06.txt").reshape(-1, 3, 4)  # camera -> world
+    Ra, ta, Rb, tb = poses[a][:, :3], poses[a][:, 3], poses[b][:, :3], poses[b][:, 3]
+    R_gt, t_gt = Rb.T @ Ra, Rb.T @ (ta - tb)  # x_b = R x_a + t
+    rot_gt = math.degrees(np.linalg.norm(cv2.Rodrigues(R_gt)[0]))
+    img_a = _gray(KITTI / "images" / f"kitti06-{a:02d}.png")
+    img_b = _gray(KITTI / "images" / f"kitti06-{b:02d}.png")
+
+    ex = OrbExtractor()
+    fa, fb = ex.detect_and_compute(img_a), ex.detect_and_compute(img_b)
+    m = match(descriptor_signs(fb.des), descriptor_signs(fa.des))
+    tv = two_view(fa.xy[m.train], fb.xy[m.query], K)
+    assert tv.t_dir is not None
+    err = math.degrees(math.acos(float(np.clip(tv.t_dir @ t_gt / np.linalg.norm(t_gt), -1, 1))))
+    assert err < max_dir_err_deg
+    assert abs(tv.rot_deg - rot_gt) < 0.5
+
+    fe = CameraFrontend(CameraParams(), Intrinsics(K=K))
+    fe.process(CameraFrame(a, 0, 0, "/kitti", img_a, "mono8"))
+    row = fe.process(CameraFrame(b, 1, 0, "/kitti", img_b, "mono8"))
+    assert row["status"] == "ok"
+    assert abs(row["rot_deg"] - rot_gt) < 0.5
+    assert row["inlier_ratio"] > 0.8 and row["h_over_e"] < 0.9  # healthy driving, 3D scene
+    assert row["entropy_norm"] > 0.74
+
+
+@pytest.mark.skipif(not TUM.is_dir(), reason="../shared/data/tum_fr3_long_office_17f absent")
+def test_tum_sequence_runs_and_tracks_brightness() -> None:
+    K = np.array([[535.4, 0, 320.1], [0, 539.2, 247.6], [0, 0, 1]])
+    paths = sorted((TUM / "rgb").glob("*.png"))[:8]
+    fe = CameraFrontend(CameraParams(), Intrinsics(K=K))
+    rows, means = [], []
+    for i, p in enumerate(paths):
+        gray = _gray(p)
+        means.append(float(gray.mean()))
+        rows.append(fe.process(CameraFrame(i, i, i, "/tum", gray, "mono8")))
+    assert rows[0]["status"] == "first_frame"
+    assert all(r["n_keypoints"] > 500 for r in rows)
+    for r, m0, m1 in zip(rows[1:], means, means[1:], strict=False):
+        assert r["d_mean_intensity"] == pytest.approx(m1 - m0, abs=1e-3)
+        assert r["status"] in {"ok", "too_few_matches"}
