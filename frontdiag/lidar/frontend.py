@@ -200,7 +200,7 @@ class LidarFrontend:
         if self._map is None:
             with timer("map"):
                 self._map = LocalMap(voxel, p.map_keyframes, p.normal_neighbors, p.num_threads)
-                self._map.insert(reg_pts)
+                self._map.insert(reg_pts, None if planar else reg_pts)
             self._poses.append((t_ref, np.eye(4)))
             self._last_kf = np.eye(4)
             if times is not None and not planar:
@@ -215,24 +215,7 @@ class LidarFrontend:
             res = self._backend.align(self._map, reg_pts, init, tau, p.max_iterations)
             T = _project_planar(res.T) if planar else res.T
             row["icp_iters"] = res.iterations
-            # correspondences at the solution, identical for every backend
-            R = T[:3, :3]
-            world = down @ R.T + T[:3, 3]
-            idx, dist = self._map.nearest(world)
-            nrm = self._map.normals[idx]
-            inl = dist <= tau
-            n_inl = int(inl.sum())
-            row["icp_fitness"] = n_inl / len(down)
-            # information only from correspondences on a well-defined plane (see LocalMap)
-            use = inl & self._map.planar[idx] & (np.einsum("ij,ij->i", nrm, nrm) > 0.5)
-            if use.any():
-                resid = np.einsum("ij,ij->i", world[use] - self._map.points[idx[use]], nrm[use])
-                row["icp_rmse_m"] = float(np.sqrt(np.mean(resid**2)))
-                spec = spectrum(down[use], nrm[use] @ R, planar)
-                if spec is not None:
-                    row["lidar_eig_min"] = spec.eig_min
-                    row["lidar_cond"] = spec.cond
-                    row["lidar_weak_dir"] = spec.weak_dir
+            row.update(score_alignment(self._map, down, T, tau, planar))
         if row["icp_fitness"] < p.min_fitness:
             self._push_pose(t_ref, init)
             return "low_overlap"
@@ -253,7 +236,7 @@ class LidarFrontend:
             moved = float(np.linalg.norm(kf[:3, 3]))
             turned = math.degrees(float(np.linalg.norm(se3_log(kf)[:3])))
             if moved >= p.keyframe_dist_m or turned >= p.keyframe_angle_deg:
-                self._map.insert(reg_pts @ T[:3, :3].T + T[:3, 3])
+                self._map.insert(reg_pts @ T[:3, :3].T + T[:3, 3], None if planar else reg_pts)
                 self._last_kf = T.copy()
         return "ok"
 
@@ -276,12 +259,43 @@ class LidarFrontend:
                                                         self.params.num_threads).points())[:, :3]
         fresh = LocalMap(voxel, self.params.map_keyframes, self.params.normal_neighbors,
                          self.params.num_threads)
-        fresh.insert(down @ T0[:3, :3].T + T0[:3, 3])
+        fresh.insert(down @ T0[:3, :3].T + T0[:3, 3], down)
         self._map = fresh
 
     def _push_pose(self, t_ns: int, T: np.ndarray) -> None:
         self._poses.append((int(t_ns), T.copy()))
         del self._poses[:-2]
+
+
+def score_alignment(lmap: LocalMap, down: np.ndarray, T: np.ndarray, tau: float,
+                    planar: bool = False) -> dict[str, Any]:
+    """Fitness, RMSE and the spectrum of a registration, from the correspondences at the
+    solution ``T`` (map <- sensor) of the downsampled scan ``down`` (sensor frame).
+
+    Computed here rather than taken from a backend, so that every backend is scored by the same
+    definition and the thresholds mean the same thing whichever one ran.
+    """
+    out: dict[str, Any] = {"icp_fitness": NAN, "icp_rmse_m": NAN, "lidar_eig_min": NAN,
+                           "lidar_cond": NAN, "lidar_weak_dir": ""}
+    if len(down) == 0:
+        return out
+    R = T[:3, :3]
+    world = down @ R.T + T[:3, 3]
+    _, dist_all = lmap.nearest(world, scoring=False)
+    out["icp_fitness"] = int((dist_all <= tau).sum()) / len(down)
+    # RMSE and information only from correspondences on measured, well-defined planes
+    idx, dist = lmap.nearest(world)
+    nrm = lmap.score_normals[idx]
+    use = (dist <= tau) & lmap.score_planar[idx] & (np.einsum("ij,ij->i", nrm, nrm) > 0.5)
+    if use.any():
+        resid = np.einsum("ij,ij->i", world[use] - lmap.score_points[idx[use]], nrm[use])
+        out["icp_rmse_m"] = float(np.sqrt(np.mean(resid**2)))
+        spec = spectrum(down[use], nrm[use] @ R, planar)
+        if spec is not None:
+            out["lidar_eig_min"] = spec.eig_min
+            out["lidar_cond"] = spec.cond
+            out["lidar_weak_dir"] = spec.weak_dir
+    return out
 
 
 def _extrude(down: np.ndarray, voxel: float) -> np.ndarray:
