@@ -120,60 +120,73 @@ def fit_homography(p_ref: np.ndarray, p_cur: np.ndarray, thr_px: float, confiden
 
 def bearings(p: np.ndarray, K: np.ndarray) -> np.ndarray:
     """Unit bearing vectors of pixel points of the ideal pinhole K."""
-    Kinv = np.linalg.inv(K)
-    f = np.column_stack([p, np.ones(len(p))]) @ Kinv.T
+    f = np.empty((len(p), 3))
+    f[:, 0] = (p[:, 0] - K[0, 2]) / K[0, 0]
+    f[:, 1] = (p[:, 1] - K[1, 2]) / K[1, 1]
+    f[:, 2] = 1.0
     return f / np.linalg.norm(f, axis=1, keepdims=True)
 
 
-def parallax_deg(p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray, R: np.ndarray) -> np.ndarray:
+def parallax_deg(f_ref: np.ndarray, f_cur: np.ndarray, R: np.ndarray) -> np.ndarray:
     """Angle between the bearings of each correspondence after removing the rotation R.
 
     With x_cur = R x_ref + t, a pure rotation makes R^T f_cur parallel to f_ref: angle 0.
     """
-    f1 = bearings(p_ref, K)
-    f2 = bearings(p_cur, K) @ R  # rows of (R^T f2)
-    c = np.clip(np.einsum("ij,ij->i", f1, f2), -1.0, 1.0)
+    c = np.clip(np.einsum("ij,ij->i", f_ref, f_cur @ R), -1.0, 1.0)  # f_cur @ R = (R^T f_cur)^T
     return np.degrees(np.arccos(c))
 
 
-def pose_information_condition(p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray,
+def midpoint_depths(f_ref: np.ndarray, f_cur: np.ndarray, R: np.ndarray, t: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Distances along each ray to the closest points of the two rays (midpoint method).
+
+    Ray 1 is lambda1 * f_ref from the reference centre; ray 2 is c2 + lambda2 * R^T f_cur with
+    c2 = -R^T t. Both positive: the point is in front of both cameras (cheirality).
+    """
+    d2 = f_cur @ R
+    c2 = -(R.T @ t.reshape(3))
+    b = np.einsum("ij,ij->i", f_ref, d2)
+    e1 = f_ref @ c2
+    e2 = d2 @ c2
+    den = 1.0 - b * b  # |f| = |d| = 1
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lam1 = (e1 - b * e2) / den
+        lam2 = (b * e1 - e2) / den
+    return lam1, lam2
+
+
+def pose_information_condition(f_ref: np.ndarray, f_cur: np.ndarray, K: np.ndarray,
                                R: np.ndarray, t: np.ndarray,
                                min_parallax_deg: float = TRIANGULATION_GATE_DEG) -> float:
     """lambda_max / lambda_min of the 6x6 pose information J^T J at the inlier points.
 
     Monocular scale is unknown, so the units are fixed explicitly: rotation in radians,
     translation in units of the median scene depth (depths are scaled to median 1). A point's
-    depth is its two-view triangulation when its parallax clears the 1 deg triangulation gate of
-    chapter 6 and it lies in front of both cameras; otherwise its depth is not observable from
-    these two views and it is placed at the median depth of the triangulated points. When fewer
-    than six points, or fewer than 10% of them, clear the gate (pure rotation, or a baseline too
-    short to measure), the few that do are stray matches sliding along their epipolar lines:
-    every point is then put at depth 1 and the translation, which is noise, is taken as zero. J is the Jacobian of the pixel
-    reprojection in the current view with respect to a left-multiplied SE(3) increment
-    [rho, phi]: d(u, v)/d(P_c) times [I | -skew(P_c)] (lesson, chapter 6, worked example 2).
+    depth is its two-view triangulation when its parallax clears the 1 deg triangulation gate
+    of chapter 6 and it lies in front of both cameras; otherwise its depth is not observable
+    from these two views and it is placed at the median depth of the triangulated points. When
+    fewer than six points, or fewer than 10% of them, clear the gate (pure rotation, or a
+    baseline too short to measure), the few that do are stray matches sliding along their
+    epipolar lines: every point is then put at depth 1 and the translation, which is noise
+    here, is taken as zero. J is the Jacobian of the pixel reprojection in the current view
+    with respect to a left-multiplied SE(3) increment [rho, phi]: d(u, v)/d(P_c) times
+    [I | -skew(P_c)] (lesson, chapter 6, worked example 2).
     """
-    n = len(p_ref)
+    n = len(f_ref)
     if n < 6:
         return float("nan")
     t = t.reshape(3)
-    f_ref = bearings(p_ref, K)
-    par = parallax_deg(p_ref, p_cur, K, R)
-    P1 = K @ np.hstack([np.eye(3), np.zeros((3, 1))])
-    P2 = K @ np.hstack([R, t.reshape(3, 1)])
-    Xh = cv2.triangulatePoints(P1, P2, p_ref.T.astype(np.float64), p_cur.T.astype(np.float64))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        X = (Xh[:3] / Xh[3]).T
-        z1 = X[:, 2]
-        z2 = (X @ R.T + t)[:, 2]
-        good = np.isfinite(z1) & (z1 > 0) & (z2 > 0) & (par >= min_parallax_deg)
+    par = parallax_deg(f_ref, f_cur, R)
+    lam1, lam2 = midpoint_depths(f_ref, f_cur, R, t)
+    z1 = lam1 * f_ref[:, 2]
+    good = np.isfinite(lam1) & (lam1 > 0) & (lam2 > 0) & (par >= min_parallax_deg)
     if np.count_nonzero(good) >= max(6, MIN_TRIANGULATED_SHARE * n):
         scale = float(np.median(z1[good]))
         t_s = t / scale
     else:  # no measurable baseline: unit depths, and t (pure noise here) is taken as zero
         scale, t_s = 1.0, np.zeros(3)
     depth = np.where(good, z1, scale) / scale  # along the optical axis, median scene depth ~ 1
-    X = f_ref / f_ref[:, 2:3] * depth[:, None]
-    Pc = X @ R.T + t_s
+    Pc = (f_ref / f_ref[:, 2:3] * depth[:, None]) @ R.T + t_s
     Pc = Pc[Pc[:, 2] > 1e-6]
     if len(Pc) < 6:
         return float("nan")
@@ -191,29 +204,31 @@ def pose_information_condition(p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarr
     return float(ev[-1] / ev[0])
 
 
-def _rotation_of_least_parallax(E: np.ndarray, R_pose: np.ndarray, p_ref: np.ndarray,
-                                p_cur: np.ndarray, K: np.ndarray) -> np.ndarray:
-    """The rotation of E's twisted pair under which the inlier bearings agree best.
+def decompose(E: np.ndarray, f_ref: np.ndarray, f_cur: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rotation, unit translation and per-point parallax (deg) from E at its inliers.
 
-    recoverPose picks between R and its twisted partner (R rotated 180 deg about t) by
-    cheirality, which is meaningless when there is no translation: t is noise and the choice
-    is a coin toss. Under any real translation the cheirality choice is also the one with the
-    smaller median parallax (the twisted partner flips bearings away from the epipole), so
-    taking the smaller one changes nothing there and fixes pure rotation.
+    Of E's twisted pair of rotations, keep the one under which the bearings agree best
+    (smallest median parallax). recoverPose chooses by cheirality instead, which is a coin
+    toss when there is no translation (t is noise); under any real translation the twisted
+    partner flips bearings away from the epipole, so both rules choose the same rotation.
+    The sign of t is then chosen by cheirality: the sign that puts more points in front of
+    both cameras.
     """
-    R1, R2, _ = cv2.decomposeEssentialMat(E)
-    best, best_par = R_pose, float(np.median(parallax_deg(p_ref, p_cur, K, R_pose)))
-    for Rc in (R1, R2):
-        par = float(np.median(parallax_deg(p_ref, p_cur, K, Rc)))
-        if par < best_par - 1e-9:
-            best, best_par = Rc, par
-    return best
+    R1, R2, t = cv2.decomposeEssentialMat(E)
+    t = t.ravel()
+    par1, par2 = parallax_deg(f_ref, f_cur, R1), parallax_deg(f_ref, f_cur, R2)
+    R, par = (R1, par1) if np.median(par1) <= np.median(par2) else (R2, par2)
+    lam1, lam2 = midpoint_depths(f_ref, f_cur, R, t)
+    front = np.count_nonzero((lam1 > 0) & (lam2 > 0))
+    behind = np.count_nonzero((lam1 < 0) & (lam2 < 0))
+    return R, (t if front >= behind else -t), par
 
 
 def two_view(p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray | None, *,
              sigma_px: float = 1.0, confidence: float = 0.999, max_iters: int = 1000,
              seed: int = 0) -> TwoView:
-    """E (if K is known) and H with USAC_MAGSAC on the same correspondences, recoverPose,
+    """E (if K is known) and H with USAC_MAGSAC on the same correspondences, the pose from E,
     parallax and the pose information condition. Points are undistorted pixel coordinates."""
     n = len(p_ref)
     p_ref = np.ascontiguousarray(p_ref, np.float64)
@@ -227,19 +242,15 @@ def two_view(p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray | None, *,
                                    threshold=epipolar_threshold_px(sigma_px), maxIters=max_iters)
     if E is None or mask is None or E.shape != (3, 3):
         return TwoView(n, inliers_e=0.0, inliers_h=inl_h, inlier_ratio=0.0)
-    mask = mask.ravel().astype(np.uint8)
-    inl_e = int(np.count_nonzero(mask))
+    sel = mask.ravel() > 0
+    inl_e = int(np.count_nonzero(sel))
     w = inl_e / n
     if inl_e < E_SAMPLE:
         return TwoView(n, inliers_e=float(inl_e), inliers_h=inl_h, inlier_ratio=w)
-    _, R, t, _ = cv2.recoverPose(E, p_ref, p_cur, K, mask=mask.copy())
-    # Parallax and information over all E inliers: recoverPose's cheirality mask is a coin toss
-    # under pure rotation and would leave a handful of points.
-    sel = mask > 0
-    R = _rotation_of_least_parallax(E, R, p_ref[sel], p_cur[sel], K)
+    f_ref, f_cur = bearings(p_ref[sel], K), bearings(p_cur[sel], K)
+    R, t, par = decompose(E, f_ref, f_cur)
     rot = float(np.degrees(np.linalg.norm(cv2.Rodrigues(R)[0])))
-    par = parallax_deg(p_ref[sel], p_cur[sel], K, R)
-    cond = pose_information_condition(p_ref[sel], p_cur[sel], K, R, t.ravel())
+    cond = pose_information_condition(f_ref, f_cur, K, R, t)
     return TwoView(n, inliers_e=float(inl_e), inliers_h=inl_h, inlier_ratio=w, rot_deg=rot,
                    parallax_med_deg=float(np.median(par)), pose_info_cond=cond,
-                   t_dir=t.ravel() / max(np.linalg.norm(t), 1e-12), ok_e=True)
+                   t_dir=t / max(float(np.linalg.norm(t)), 1e-12), ok_e=True)

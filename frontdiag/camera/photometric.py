@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 PATCH = 8
+MAX_PATCHES = 256  # 16k pixels: plenty for a median and a two-parameter fit
 
 
 @dataclass(frozen=True)
@@ -35,15 +36,17 @@ class Photometric:
     n_patches: int = 0
 
 
-def _patches(img: np.ndarray, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(M, PATCH*PATCH) pixel patches around xy, and the mask of xy whose patch fits."""
-    h, w = img.shape
-    half = PATCH // 2
-    x0 = np.rint(xy[:, 0]).astype(np.intp) - half
-    y0 = np.rint(xy[:, 1]).astype(np.intp) - half
-    ok = (x0 >= 0) & (y0 >= 0) & (x0 + PATCH <= w) & (y0 + PATCH <= h)
+def _corners(shape: tuple[int, ...], xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Top-left corners of the PATCHxPATCH patches around xy, and which of them fit."""
+    h, w = shape[:2]
+    x0 = np.rint(xy[:, 0]).astype(np.intp) - PATCH // 2
+    y0 = np.rint(xy[:, 1]).astype(np.intp) - PATCH // 2
+    return x0, y0, (x0 >= 0) & (y0 >= 0) & (x0 + PATCH <= w) & (y0 + PATCH <= h)
+
+
+def _patches(img: np.ndarray, x0: np.ndarray, y0: np.ndarray) -> np.ndarray:
     win = np.lib.stride_tricks.sliding_window_view(img, (PATCH, PATCH))
-    return win[y0[ok], x0[ok]].reshape(-1, PATCH * PATCH), ok
+    return win[y0, x0].reshape(-1, PATCH * PATCH).astype(np.float32)
 
 
 def _fit_affine(i1: np.ndarray, i2: np.ndarray) -> tuple[float, float]:
@@ -56,19 +59,20 @@ def _fit_affine(i1: np.ndarray, i2: np.ndarray) -> tuple[float, float]:
     return a, float(i2.mean() - a * i1.mean())
 
 
-def photometric(prev: np.ndarray, cur: np.ndarray, xy_prev: np.ndarray,
-                xy_cur: np.ndarray) -> Photometric:
+def photometric(prev: np.ndarray, cur: np.ndarray, xy_prev: np.ndarray, xy_cur: np.ndarray,
+                max_patches: int = MAX_PATCHES) -> Photometric:
     """Median |I2 - I1| over patches at tracked features, and the affine gain/bias."""
-    if len(xy_prev) == 0:
+    if len(xy_prev) == 0 or prev.ndim != 2 or cur.ndim != 2:
         return Photometric()
-    p1, ok1 = _patches(prev, xy_prev)
-    ok_both = ok1.copy()
-    _, ok2 = _patches(cur, xy_cur)
-    ok_both &= ok2
-    if not ok_both.any():
+    x1, y1, ok1 = _corners(prev.shape, xy_prev)
+    x2, y2, ok2 = _corners(cur.shape, xy_cur)
+    idx = np.flatnonzero(ok1 & ok2)
+    if len(idx) == 0:
         return Photometric()
-    p1 = _patches(prev, xy_prev[ok_both])[0].astype(np.float32)
-    p2 = _patches(cur, xy_cur[ok_both])[0].astype(np.float32)
+    if len(idx) > max_patches:  # evenly spaced subset: the medians do not need more
+        idx = idx[np.linspace(0, len(idx) - 1, max_patches).astype(np.intp)]
+    p1 = _patches(prev, x1[idx], y1[idx])
+    p2 = _patches(cur, x2[idx], y2[idx])
     res = float(np.median(np.abs(p2 - p1)))
     unclipped = ~(((p1 <= 0) | (p1 >= 255) | (p2 <= 0) | (p2 >= 255)).any(axis=1))
     q1, q2 = p1[unclipped], p2[unclipped]

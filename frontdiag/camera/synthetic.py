@@ -112,3 +112,17 @@ def cluster(seed: int = 0, z: float = 4.0, size_m: float = 0.5,
     x, y = center
     return [_plane((x, y, z), (1, 0, 0), (0, 1, 0), (size_m, size_m * 0.6), 0.002,
                    seed * 100 + 21)]
+
+
+def walk(n: int, size: tuple[int, int] = (1280, 720), step_deg: float = 0.15,
+         step_m: float = 0.02, seed: int = 0) -> tuple[list[np.ndarray], np.ndarray]:
+    """``n`` views of :func:`room` from a camera walking forward and yawing a little each
+    frame (a healthy, small-motion sequence), and the intrinsics K they were rendered with."""
+    K = look_K(*size)
+    planes = room(seed)
+    frames = []
+    for k in range(n):
+        R = rot((0, 1, 0), step_deg * k)
+        C = np.array([0.3 * step_m * k, 0.0, step_m * k])
+        frames.append(render(planes, K, R, -R @ C, size))
+    return frames, K
