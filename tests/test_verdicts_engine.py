@@ -139,6 +139,36 @@ def test_he_parallax_quadrants(ruleset, he, parallax, expected) -> None:
     assert got == ([expected] if expected else [])
 
 
+def _keyframe_intervals(he_first: float, he_last: float, n: int = 40) -> pd.DataFrame:
+    """Intervals of 4 frames per reference keyframe, parallax growing 0.5 -> 1.4 deg in each."""
+    changes = {}
+    for i in range(1, n):
+        k = (i - 1) % 4
+        changes[i] = {"ref_frame": 4 * ((i - 1) // 4), "parallax_med_deg": 0.5 + 0.3 * k,
+                      "h_over_e": he_first + (he_last - he_first) * k / 3}
+    return frames(n, changes)
+
+
+def test_h_over_e_is_read_where_the_keyframe_saw_most_parallax(ruleset) -> None:
+    # healthy driving: right after each keyframe change H/E reads 0.95 at 0.5 deg of parallax
+    # (any scene fits a homography at a tiny baseline) and falls to 0.55 as parallax grows
+    res = evaluate(_keyframe_intervals(0.95, 0.55), ruleset)
+    assert (res.table["verdict"] == "ok").all()
+    # a plane: H/E stays above 0.9 as the parallax grows, so every frame of the interval is planar
+    res = evaluate(_keyframe_intervals(0.96, 0.93), ruleset)
+    assert all(conds(res, f) == ["planar_degeneracy"] for f in range(5, 35))
+
+
+def test_reading_per_frame_is_an_override_away(ruleset, tmp_path) -> None:
+    ov = tmp_path / "ov.toml"
+    ov.write_text('[FD-PLN-001]\nthreshold.read_at = "frame"\n')
+    res = evaluate(_keyframe_intervals(0.95, 0.55, n=80), load_ruleset(overrides=ov))
+    assert res.rule_frames("FD-PLN-001") == 0      # isolated frames: persistence drops them
+    ov.write_text('[FD-PLN-001]\nthreshold.read_at = "frame"\npersistence = false\n')
+    res = evaluate(_keyframe_intervals(0.95, 0.55, n=80), load_ruleset(overrides=ov))
+    assert res.rule_frames("FD-PLN-001") > 0
+
+
 def test_clustering_confirmed_by_pose_information(ruleset) -> None:
     t = frames(20, {range(5, 15): {"entropy_norm": 0.36, "pose_info_cond": 5000.0}})
     res = evaluate(t, ruleset)
@@ -213,7 +243,7 @@ def test_pose_increment_correlates_with_exposure_steps(ruleset) -> None:
     for step in (20, 50, 75):
         dmean[step] = 20.0
         rot[step:] += 3.0            # the pose jumps exactly at the step
-    t = frames(n)
+    t = frames(n, {range(n): {"ref_frame": 0}})
     t["rot_deg"], t["d_mean_intensity"] = rot, dmean
     f = next(f for f in evaluate(t, ruleset).run_findings if f.rule == "FD-RUN-001")
     assert f.fired and f.value > 0.9
@@ -223,7 +253,7 @@ def test_pose_increment_correlates_with_exposure_steps(ruleset) -> None:
 def test_healthy_run_has_near_zero_correlation(ruleset) -> None:
     rng = np.random.default_rng(1)
     n = 90
-    t = frames(n)
+    t = frames(n, {range(n): {"ref_frame": 0}})
     t["rot_deg"] = np.cumsum(rng.normal(0.2, 0.05, n))
     t["d_mean_intensity"] = rng.normal(0, 0.5, n)
     t.loc[40, "d_mean_intensity"] = 12.0        # a step the pose ignores

@@ -79,7 +79,7 @@ def test_episode_length_limit_from_run_toml(ruleset) -> None:
 def test_run_finding_gates_at_its_severity(ruleset) -> None:
     import numpy as np
 
-    t = frames(90)
+    t = frames(90, {range(90): {"ref_frame": 0}})
     rot = np.cumsum(np.full(90, 0.2))
     dmean = np.zeros(90)
     for s in (20, 50, 75):

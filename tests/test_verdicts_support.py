@@ -9,7 +9,7 @@ import pandas as pd
 HEALTHY_CAMERA: dict[str, Any] = dict(
     n_keypoints=1000, entropy_norm=0.85, n_putative=900, ratio_reject_rate=0.30, n_matches=420,
     inliers_e=300, inliers_h=126, h_over_e=0.42, inlier_ratio=0.85, ransac_iters_required=12,
-    ransac_iters_run=40, parallax_med_deg=2.1, rot_deg=1.0, ref_frame=0, pose_info_cond=50.0,
+    ransac_iters_run=40, parallax_med_deg=2.1, rot_deg=1.0, pose_info_cond=50.0,
     mean_intensity=120.0, d_mean_intensity=0.5, photo_residual_med=4.0, affine_gain=1.0,
     status="ok")
 HEALTHY_LIDAR: dict[str, Any] = dict(
@@ -28,6 +28,8 @@ def frames(n: int, changes: dict[int | range, dict[str, Any]] | None = None, *,
         r = dict(base)
         r.update(frame=i, t_ns=t0_ns + int(i * 1e9 / rate_hz), t_rel_s=i / rate_hz,
                  sensor=sensor, topic=topic)
+        if sensor == "camera":
+            r["ref_frame"] = i - 1      # every frame its own reference unless a test says so
         for key, upd in (changes or {}).items():
             if (i in key) if isinstance(key, range) else i == key:
                 r.update(upd)

@@ -62,6 +62,8 @@ class Check:
     """Param name -> the metric it is a threshold on (for units and `frontdiag explain`)."""
     frame: Callable[[pd.DataFrame, Params], np.ndarray] | None = None
     explain: Callable[[Mapping[str, Any], Params], list[str]] | None = None
+    context: Callable[[pd.DataFrame, Params], pd.DataFrame] | None = None
+    """Derived per-row values (from neighbours) that `explain` shows next to the row's own."""
     run: Callable[[pd.DataFrame, Params], RunOutcome] | None = None
 
     def param_problem(self, name: str, value: Any) -> str | None:
@@ -125,13 +127,18 @@ def _matching_table_explain(row: Mapping[str, Any], p: Params) -> list[str]:
 
 # --- chapter 4: exposure step -------------------------------------------------------------------
 
+def _exposure_context(df: pd.DataFrame, p: Params) -> pd.DataFrame:
+    res = col(df, "photo_residual_med")
+    return pd.DataFrame({"prev_photo_residual_med": np.concatenate([[np.nan], res[:-1]])})
+
+
 def _exposure_step(df: pd.DataFrame, p: Params) -> np.ndarray:
     dm = np.abs(col(df, "d_mean_intensity"))
     res = col(df, "photo_residual_med")
     rej = col(df, "ratio_reject_rate")
     with np.errstate(invalid="ignore"):
         disturbed = (res >= p["residual_step"]) | (np.isnan(res) & (rej >= p["reject_exposure"]))
-        prev_res = np.concatenate([[np.nan], res[:-1]])
+        prev_res = _exposure_context(df, p)["prev_photo_residual_med"].to_numpy()
         clean_before = ~(prev_res >= p["residual_step"])
         step = (dm > p["dmean_step"]) & disturbed & clean_before
     out = step.copy()
@@ -156,8 +163,16 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
         verdict = ("the affine model absorbs it: a brightness change, not blur"
                    if res_aff < p["residual_step"] <= res else "")
         out.append(f"residual after the affine model {res_aff:.1f} {verdict}".rstrip())
-    out.append("look-alike motion blur: it degrades the residual over several frames, so a step "
-               "needs a clean residual on the frame before; blur also follows gyro rate")
+    prev = _v(row, "prev_photo_residual_med")
+    if np.isnan(prev):
+        out.append("no residual on the frame before: the motion-blur look-alike cannot be "
+                   "ruled out by onset")
+    elif prev < p["residual_step"]:
+        out.append(f"motion blur ruled out: the residual was clean ({prev:.1f}) on the frame "
+                   "before; blur degrades over several frames, a step is one frame wide")
+    else:
+        out.append(f"residual already {prev:.1f} on the frame before: a gradual rise reads as "
+                   "motion blur (check gyro rate), not an exposure step")
     return out
 
 
@@ -176,9 +191,34 @@ def _quadrant(he: np.ndarray, par: np.ndarray, p: Params) -> np.ndarray:
     return q
 
 
+def _keyframe_read(df: pd.DataFrame, p: Params) -> pd.DataFrame:
+    """H/E and parallax as read at the most-parallax row of each row's reference keyframe.
+
+    H/E carries no information at low parallax: with a tiny baseline any scene fits a
+    homography within the RANSAC threshold, so every frame just after a keyframe change reads
+    H/E ~ 0.95. Degeneracy is a property of the scene between two keyframes, so each row takes
+    the quadrant of the row of its reference that saw the most parallax. Rows without a
+    `ref_frame` (or with read_at = "frame") are read on their own.
+    """
+    he, par = col(df, "h_over_e"), col(df, "parallax_med_deg")
+    ref = col(df, "ref_frame")
+    out = pd.DataFrame({"kf_h_over_e": he, "kf_parallax_med_deg": par})
+    valid = ~np.isnan(he) & ~np.isnan(par) & (ref >= 0)
+    if p.get("read_at", "frame") != "keyframe" or not valid.any():
+        return out
+    pos = np.flatnonzero(valid)
+    best = pd.Series(par[pos], index=pos).groupby(ref[pos]).idxmax()
+    best_of_ref = dict(zip(best.index.tolist(), best.to_numpy().tolist(), strict=True))
+    src = np.array([best_of_ref[r] for r in ref[pos]], dtype=int)
+    out.loc[pos, "kf_h_over_e"] = he[src]
+    out.loc[pos, "kf_parallax_med_deg"] = par[src]
+    return out
+
+
 def _he_parallax(df: pd.DataFrame, p: Params) -> np.ndarray:
+    read = _keyframe_read(df, p)
     with np.errstate(invalid="ignore"):
-        q = _quadrant(col(df, "h_over_e"), col(df, "parallax_med_deg"), p)
+        q = _quadrant(read["kf_h_over_e"].to_numpy(), read["kf_parallax_med_deg"].to_numpy(), p)
     return q == (3 if p["want"] == "pure_rotation" else 2)
 
 
@@ -193,11 +233,17 @@ _QUADRANT_WORDS = {
 
 def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     he, par = _v(row, "h_over_e"), _v(row, "parallax_med_deg")
+    kf_he, kf_par = _v(row, "kf_h_over_e"), _v(row, "kf_parallax_med_deg")
+    out = [f"this frame: h_over_e {_fmt(he)}, parallax_med_deg {_fmt(par)}"]
+    if not np.isnan(kf_he) and (kf_he != he or kf_par != par):
+        out.append(f"read at the reference keyframe's most-parallax frame: h_over_e "
+                   f"{_fmt(kf_he)}, parallax {_fmt(kf_par)} (H/E is uninformative at low "
+                   "parallax)")
+        he, par = kf_he, kf_par
     with np.errstate(invalid="ignore"):
         q = int(_quadrant(np.array([he]), np.array([par]), p)[0])
-    out = [f"h_over_e {_fmt(he)} (degenerate > {p['he_degenerate']:g}; general 3D < 0.5), "
-           f"parallax_med_deg {_fmt(par)} (split at {p['parallax_split_deg']:g}: "
-           "rotation < 0.1, plane 2-3)", _QUADRANT_WORDS[q]]
+    out += [f"degenerate > {p['he_degenerate']:g} (general 3D < 0.5); parallax split at "
+            f"{p['parallax_split_deg']:g} deg (rotation < 0.1, plane 2-3)", _QUADRANT_WORDS[q]]
     if q == 3:
         out.append(f"planar_degeneracy ruled out by parallax {par:.3g} deg < "
                    f"{p['parallax_split_deg']:g}")
@@ -332,15 +378,15 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
           {"d_mean_intensity": "absmax", "photo_residual_med": "max", "affine_gain": "absdev1"},
           {"dmean_step": "d_mean_intensity", "residual_step": "photo_residual_med",
            "reject_exposure": "ratio_reject_rate"},
-          frame=_exposure_step, explain=_exposure_explain),
+          frame=_exposure_step, explain=_exposure_explain, context=_exposure_context),
     Check("he_parallax_quadrant", "chapter 6: H/E inlier ratio x median parallax separates pure "
           "rotation, a planar scene, a nearly stationary camera and healthy motion",
-          "frame", "camera", ("h_over_e", "parallax_med_deg"),
+          "frame", "camera", ("h_over_e", "parallax_med_deg", "ref_frame"),
           {"want": "choice:pure_rotation|planar_degeneracy", "he_degenerate": _NUM,
-           "parallax_split_deg": _NUM},
+           "parallax_split_deg": _NUM, "read_at": "choice:keyframe|frame"},
           {"h_over_e": "max", "parallax_med_deg": "min"},
           {"he_degenerate": "h_over_e", "parallax_split_deg": "parallax_med_deg"},
-          frame=_he_parallax, explain=_he_parallax_explain),
+          frame=_he_parallax, explain=_he_parallax_explain, context=_keyframe_read),
     Check("clustering", "chapter 1: low keypoint entropy with enough features, confirmed by the "
           "condition number of the pose information matrix",
           "frame", "camera", ("entropy_norm", "n_keypoints", "pose_info_cond"),

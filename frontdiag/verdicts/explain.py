@@ -47,13 +47,21 @@ def _value(row: Mapping[str, Any], metric: str) -> float:
         return math.nan
 
 
-def _raw_hits(result: Verdicts, rule: Rule, position: int) -> bool:
-    """Whether the rule's clauses and check hold on the row, read within its topic's rows."""
+def _raw_hits(result: Verdicts, rule: Rule, position: int) -> tuple[bool, dict[str, Any]]:
+    """Whether the rule's clauses and check hold on the row, read within its topic's rows, and
+    the values the rule's check derives for the row from its neighbours."""
     for _topic, pos in topic_groups(result.table, rule.sensor):
         where = np.flatnonzero(pos == position)
         if where.size:
-            return bool(rule_mask(rule, result.table.iloc[pos])[where[0]])
-    return False
+            rows = result.table.iloc[pos]
+            raw = bool(rule_mask(rule, rows)[where[0]])
+            ctx: dict[str, Any] = {}
+            chk = CHECKS.get(rule.check or "")
+            if chk is not None and chk.context is not None:
+                params = {k: p.value for k, p in rule.params.items()}
+                ctx = chk.context(rows.reset_index(drop=True), params).iloc[where[0]].to_dict()
+            return raw, ctx
+    return False, {}
 
 
 def explain_row(result: Verdicts, position: int) -> list[RuleExplanation]:
@@ -72,12 +80,13 @@ def explain_row(result: Verdicts, position: int) -> list[RuleExplanation]:
             clauses.append(ClauseLine(c.metric, m.unit if m else "", v,
                                       describe(c.metric, c.op, c.value, use_abs=c.abs), holds,
                                       c.reason, c.rules_out))
+        raw, ctx = _raw_hits(result, rule, position)
         lines: list[str] = []
         if rule.check is not None:
             chk = CHECKS[rule.check]
             if chk.explain is not None:
-                lines = chk.explain(row, {k: p.value for k, p in rule.params.items()})
+                lines = chk.explain({**row, **ctx},
+                                    {k: p.value for k, p in rule.params.items()})
         fired = bool(result.hits[rule.id][position]) if rule.id in result.hits else False
-        out.append(RuleExplanation(rule, fired, _raw_hits(result, rule, position), clauses,
-                                   lines))
+        out.append(RuleExplanation(rule, fired, raw, clauses, lines))
     return out
