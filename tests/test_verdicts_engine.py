@@ -127,6 +127,22 @@ def test_exposure_step_is_one_frame_wide_unlike_motion_blur(ruleset) -> None:
     assert conds(evaluate(t, ruleset), 10) == []
 
 
+def test_exposure_step_recovers_within_three_frames_a_ramp_does_not(ruleset) -> None:
+    step = {10: {"d_mean_intensity": 20.0, "photo_residual_med": 22.0},
+            11: {"photo_residual_med": 12.0}}               # one disturbed frame, then clean
+    res = evaluate(frames(30, step), ruleset)
+    assert [f for f in range(30) if conds(res, f)] == [10, 11]
+    ramp = {i: {"d_mean_intensity": -20.0, "photo_residual_med": 21.0} for i in range(10, 15)}
+    res = evaluate(frames(30, ramp), ruleset)                # lights fading over five frames
+    assert (res.table["verdict"] == "ok").all()
+
+
+def test_exposure_step_without_photometric_residual_uses_rejection(ruleset) -> None:
+    t = frames(30, {10: {"d_mean_intensity": 15.0, "ratio_reject_rate": 0.55}})
+    t["photo_residual_med"] = np.nan
+    assert conds(evaluate(t, ruleset), 10) == ["exposure_step"]
+
+
 @pytest.mark.parametrize(("he", "parallax", "expected"), [
     (0.98, 0.04, "pure_rotation"),
     (0.95, 2.5, "planar_degeneracy"),

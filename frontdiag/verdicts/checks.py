@@ -127,27 +127,53 @@ def _matching_table_explain(row: Mapping[str, Any], p: Params) -> list[str]:
 
 # --- chapter 4: exposure step -------------------------------------------------------------------
 
+def _photometric_state(df: pd.DataFrame, p: Params) -> tuple[np.ndarray, np.ndarray]:
+    """(disturbed, clean) per row: the photometric residual against residual_step, or the
+    ratio-test rejection against reject_exposure where the residual is not computable. A row
+    with neither is neither disturbed nor clean."""
+    res, rej = col(df, "photo_residual_med"), col(df, "ratio_reject_rate")
+    with np.errstate(invalid="ignore"):
+        by_res = ~np.isnan(res)
+        by_rej = ~by_res & ~np.isnan(rej)
+        disturbed = (by_res & (res >= p["residual_step"])) | (by_rej & (rej >= p["reject_exposure"]))
+        clean = (by_res & (res < p["residual_step"])) | (by_rej & (rej < p["reject_exposure"]))
+    return disturbed, clean
+
+
 def _exposure_context(df: pd.DataFrame, p: Params) -> pd.DataFrame:
     res = col(df, "photo_residual_med")
-    return pd.DataFrame({"prev_photo_residual_med": np.concatenate([[np.nan], res[:-1]])})
+    _, clean = _photometric_state(df, p)
+    window = max(int(p["recovery_frames"]), 1)
+    recovers = np.zeros(len(df))
+    for i in range(len(df)):
+        ahead = clean[i + 1:i + 1 + window]
+        recovers[i] = (np.argmax(ahead) + 1) if ahead.any() else (
+            0 if i + window < len(df) else -1)
+    return pd.DataFrame({"prev_photo_residual_med": np.concatenate([[np.nan], res[:-1]]),
+                         "recovers_after_frames": recovers})
 
 
 def _exposure_step(df: pd.DataFrame, p: Params) -> np.ndarray:
+    """One frame wide with clean frames on both sides (ch4), recovering within 2-3 (ch2).
+
+    A candidate is a row with |d_mean_intensity| > dmean_step that is photometrically disturbed
+    while the row before was not (blur builds up over several frames). It is a step when a clean
+    row follows within recovery_frames; the disturbed rows in between belong to it. A ramp that
+    stays disturbed longer (lights fading, flicker) is another brightness violation, not a step.
+    """
     dm = np.abs(col(df, "d_mean_intensity"))
-    res = col(df, "photo_residual_med")
-    rej = col(df, "ratio_reject_rate")
+    disturbed, clean = _photometric_state(df, p)
+    prev_disturbed = np.concatenate([[False], disturbed[:-1]])
     with np.errstate(invalid="ignore"):
-        disturbed = (res >= p["residual_step"]) | (np.isnan(res) & (rej >= p["reject_exposure"]))
-        prev_res = _exposure_context(df, p)["prev_photo_residual_med"].to_numpy()
-        clean_before = ~(prev_res >= p["residual_step"])
-        step = (dm > p["dmean_step"]) & disturbed & clean_before
-    out = step.copy()
-    # the frames right after a step belong to it while they are still disturbed (2-3 frames)
-    for i in np.flatnonzero(step).tolist():
-        for j in range(i + 1, min(i + int(p["recovery_frames"]), len(out))):
-            if not disturbed[j]:
-                break
-            out[j] = True
+        candidate = (dm > p["dmean_step"]) & disturbed & ~prev_disturbed
+    window = max(int(p["recovery_frames"]), 1)
+    out = np.zeros(len(df), dtype=bool)
+    for i in np.flatnonzero(candidate).tolist():
+        ahead = clean[i + 1:i + 1 + window]
+        if ahead.any():
+            out[i:i + 1 + int(np.argmax(ahead))] = True
+        elif i + window >= len(df):  # the data ends before it could recover: keep the step
+            out[i] = True
     return out
 
 
@@ -164,6 +190,13 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                    if res_aff < p["residual_step"] <= res else "")
         out.append(f"residual after the affine model {res_aff:.1f} {verdict}".rstrip())
     prev = _v(row, "prev_photo_residual_med")
+    rec = _v(row, "recovers_after_frames")
+    if rec > 0:
+        out.append(f"clean again {rec:.0f} frame(s) later (a step recovers within "
+                   f"{p['recovery_frames']:g})")
+    elif rec == 0:
+        out.append(f"still disturbed {p['recovery_frames']:g} frames later: a ramp (lights "
+                   "fading, flicker), not an auto-exposure step")
     if np.isnan(prev):
         out.append("no residual on the frame before: the motion-blur look-alike cannot be "
                    "ruled out by onset")
@@ -369,8 +402,8 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
           {"kp_floor": "n_keypoints", "reject_repetitive": "ratio_reject_rate",
            "dmean_step": "d_mean_intensity"},
           frame=_matching_table, explain=_matching_table_explain),
-    Check("exposure_step", "chapter 4: a one-frame jump of mean intensity with the photometric "
-          "residual jumping with it, clean before; the 2-3 disturbed frames after belong to it",
+    Check("exposure_step", "chapter 4: a jump of mean intensity with the photometric residual "
+          "jumping with it, clean before and clean again within 2-3 frames",
           "frame", "camera",
           ("d_mean_intensity", "photo_residual_med", "ratio_reject_rate", "affine_gain"),
           {"dmean_step": _NUM, "residual_step": _NUM, "reject_exposure": _NUM,
