@@ -56,6 +56,7 @@ def test_both_backends_agree_on_pose_and_spectrum(case) -> None:
     scores = {k: score_alignment(lmap, src, r.T, 1.0) for k, r in res.items()}
     ea, eb = scores["small_gicp"]["lidar_eig_min"], scores["open3d"]["lidar_eig_min"]
     assert rotation_angle_deg(diff) < 0.1
+    assert abs(res["small_gicp"].fitness - res["open3d"].fitness) < 0.02
     if name == "hall":
         # every direction is constrained: the same optimum to within a centimetre, and the
         # spectrum, which depends on the pose only through the correspondences, within 5 %

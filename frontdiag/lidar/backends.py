@@ -31,6 +31,7 @@ class AlignResult:
     T: np.ndarray  # 4x4, map <- sensor
     iterations: int
     converged: bool
+    fitness: float  # share of source points with a map point within the threshold at the end
 
 
 class Target(Protocol):
@@ -68,7 +69,7 @@ class SmallGicpBackend:
                              num_threads=self.num_threads, max_iterations=int(max_iterations),
                              rotation_epsilon=1e-4, translation_epsilon=1e-4)
         return AlignResult(np.asarray(res.T_target_source), int(res.iterations),
-                           bool(res.converged))
+                           bool(res.converged), int(res.num_inliers) / max(len(source), 1))
 
 
 _OPEN3D: Any = None
@@ -135,7 +136,7 @@ class Open3dBackend:
                       o3d.core.Tensor(np.asarray(init, dtype=np.float64)),
                       reg.TransformationEstimationPointToPlane(), crit)
         return AlignResult(res.transformation.numpy().astype(np.float64),
-                           int(res.num_iterations), bool(res.converged))
+                           int(res.num_iterations), bool(res.converged), float(res.fitness))
 
 
 def make_backend(name: str, num_threads: int = 1) -> Backend:

@@ -162,9 +162,8 @@ class LidarFrontend:
         with timer("preprocess"):
             xyz = np.asarray(scan.xyz, dtype=np.float64).reshape(-1, 3)
             times = scan.time_rel_s
-            finite = np.isfinite(xyz).all(axis=1)
             r2 = np.einsum("ij,ij->i", xyz, xyz)
-            keep = finite & (r2 >= p.min_range_m**2) & (r2 <= p.max_range_m**2)
+            keep = (r2 >= p.min_range_m**2) & (r2 <= p.max_range_m**2)  # False for NaN too
             if not keep.all():
                 xyz = xyz[keep]
                 times = None if times is None else np.asarray(times)[keep]
@@ -215,6 +214,7 @@ class LidarFrontend:
             res = self._backend.align(self._map, reg_pts, init, tau, p.max_iterations)
             T = _project_planar(res.T) if planar else res.T
             row["icp_iters"] = res.iterations
+            row["icp_fitness"] = res.fitness
             row.update(score_alignment(self._map, down, T, tau, planar))
         if row["icp_fitness"] < p.min_fitness:
             self._push_pose(t_ref, init)
@@ -269,20 +269,20 @@ class LidarFrontend:
 
 def score_alignment(lmap: LocalMap, down: np.ndarray, T: np.ndarray, tau: float,
                     planar: bool = False) -> dict[str, Any]:
-    """Fitness, RMSE and the spectrum of a registration, from the correspondences at the
-    solution ``T`` (map <- sensor) of the downsampled scan ``down`` (sensor frame).
+    """RMSE and the spectrum of a registration, from the correspondences at the solution ``T``
+    (map <- sensor) of the downsampled scan ``down`` (sensor frame).
 
     Computed here rather than taken from a backend, so that every backend is scored by the same
-    definition and the thresholds mean the same thing whichever one ran.
+    definition and the thresholds mean the same thing whichever one ran. (Fitness, the share of
+    points with any map point within ``tau``, is the same definition in both backends and is
+    taken from them.)
     """
-    out: dict[str, Any] = {"icp_fitness": NAN, "icp_rmse_m": NAN, "lidar_eig_min": NAN,
-                           "lidar_cond": NAN, "lidar_weak_dir": ""}
+    out: dict[str, Any] = {"icp_rmse_m": NAN, "lidar_eig_min": NAN, "lidar_cond": NAN,
+                           "lidar_weak_dir": ""}
     if len(down) == 0:
         return out
     R = T[:3, :3]
     world = down @ R.T + T[:3, 3]
-    _, dist_all = lmap.nearest(world, scoring=False)
-    out["icp_fitness"] = int((dist_all <= tau).sum()) / len(down)
     # RMSE and information only from correspondences on measured, well-defined planes
     idx, dist = lmap.nearest(world)
     nrm = lmap.score_normals[idx]
