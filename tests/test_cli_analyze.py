@@ -1,0 +1,272 @@
+"""`frontdiag analyze` and `frontdiag info` end to end on tiny recordings."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from recording_factory import CONTAINERS, T0, frame, write_recording
+
+import frontdiag
+from frontdiag.cli import main
+from frontdiag.io.writer import image_msg
+from frontdiag.metrics import CAMERA_COLUMNS
+
+SHARED = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+def run(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    code = main(args)
+    cap = capsys.readouterr()
+    return code, cap.out, cap.err
+
+
+@pytest.mark.parametrize("container", list(CONTAINERS))
+def test_analyze_writes_the_table_for_every_container(tmp_path: Path, container: str,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    fmt, name = CONTAINERS[container]
+    log = write_recording(tmp_path / name, fmt, n=5)
+    out = tmp_path / "res"
+    code, stdout, _ = run(["analyze", str(log), "--out", str(out), "--quiet"], capsys)
+    assert code == 0
+    df = pd.read_parquet(out / "frames.parquet")
+    assert len(df) == 5
+    assert set(CAMERA_COLUMNS) <= set(df.columns)
+    assert list(df["frame"]) == [0, 1, 2, 3, 4]
+    assert (df["sensor"] == "camera").all()
+    assert df["status"].iloc[0] != "ok"  # nothing to match the first frame against
+    man = json.loads((out / "manifest.json").read_text())
+    assert man["topics"]["camera"] == "/cam/image_raw"
+    assert man["intrinsics"]["source"].startswith("CameraInfo")
+    assert man["params"]["camera"]["n_features"] == 1000
+    assert "opencv-python-headless" in man["versions"]
+
+
+def test_csv_output_and_terminal_summary(tmp_path: Path,
+                                         capsys: pytest.CaptureFixture[str]) -> None:
+    log = write_recording(tmp_path / "run.mcap", "mcap", n=4)
+    code, stdout, _ = run(["analyze", str(log), "--out", str(tmp_path / "r"), "--format", "csv"],
+                          capsys)
+    assert code == 0
+    assert (tmp_path / "r" / "frames.csv").exists()
+    assert "entropy H/Hmax" in stdout  # the summary table, with units in the labels
+    assert "latency (ms)" in stdout
+
+
+def test_json_summary_on_stdout(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    log = write_recording(tmp_path / "run.mcap", "mcap", n=4)
+    code, stdout, _ = run(["analyze", str(log), "--json"], capsys)
+    assert code == 0
+    data = json.loads(stdout)
+    assert data["sensors"]["camera"]["frames"] == 4
+
+
+def test_missing_file_is_one_line_exit_2(tmp_path: Path,
+                                         capsys: pytest.CaptureFixture[str]) -> None:
+    code, _, err = run(["analyze", str(tmp_path / "nope.mcap")], capsys)
+    assert code == 2
+    assert "nope.mcap" in err
+    assert "Traceback" not in err
+    assert len([line for line in err.splitlines() if line.strip()]) <= 2
+
+
+def test_debug_shows_the_traceback(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    code, _, err = run(["--debug", "analyze", str(tmp_path / "nope.mcap")], capsys)
+    assert code == 2
+    assert "Traceback" in err
+
+
+def test_ambiguous_topics_exit_2_with_exact_options(tmp_path: Path,
+                                                    capsys: pytest.CaptureFixture[str]) -> None:
+    def extra(w, i, t):  # type: ignore[no-untyped-def]
+        w.write("/cam2/image_raw", "sensor_msgs/msg/Image", image_msg(frame(i), "mono8", t), t)
+
+    log = write_recording(tmp_path / "two.mcap", "mcap", n=2, extra=extra)
+    code, _, err = run(["analyze", str(log)], capsys)
+    assert code == 2
+    assert "--camera-topic /cam/image_raw" in err and "--camera-topic /cam2/image_raw" in err
+    code, _, _ = run(["analyze", str(log), "--camera-topic", "/cam2/image_raw", "-q"], capsys)
+    assert code == 0
+
+
+def test_unknown_topic_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    log = write_recording(tmp_path / "run.mcap", "mcap", n=2)
+    code, _, err = run(["analyze", str(log), "--camera-topic", "/nope"], capsys)
+    assert code == 2 and "/nope" in err
+
+
+def test_truncated_recording_keeps_frames_before_the_damage(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    full = write_recording(tmp_path / "full.mcap", "mcap", n=150)
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(full.read_bytes()[: int(full.stat().st_size * 0.6)])
+    out = tmp_path / "res"
+    code, _, err = run(["analyze", str(cut), "--out", str(out), "--quiet"], capsys)
+    assert code == 2
+    assert "cut.mcap" in err and "damaged" in err
+    df = pd.read_parquet(out / "frames.parquet")
+    assert 20 <= len(df) < 150
+    assert json.loads((out / "manifest.json").read_text())["fault"]
+
+
+def test_unknown_encoding_throughout_is_exit_2_naming_it(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from frontdiag.io.writer import RecordingWriter
+
+    log = tmp_path / "yuv.mcap"
+    with RecordingWriter(log, "mcap") as w:
+        for i in range(12):
+            vals = image_msg(frame(i), "mono8", T0 + i)
+            vals["encoding"] = "yuv422"
+            w.write("/cam/image_raw", "sensor_msgs/msg/Image", vals, T0 + i)
+    code, _, err = run(["analyze", str(log), "-q"], capsys)
+    assert code == 2
+    assert "yuv422" in err and "/cam/image_raw" in err
+
+
+def test_single_corrupt_message_is_skipped_and_counted(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    def extra(w, i, t):  # type: ignore[no-untyped-def]
+        if i == 2:  # a bogus payload on the image topic, between good frames
+            w.write_raw("/cam/image_raw", "sensor_msgs/msg/Image", b"\x00\x01\x02", t + 1)
+
+    log = write_recording(tmp_path / "bad.mcap", "mcap", n=5, extra=extra)
+    out = tmp_path / "res"
+    code, stdout, _ = run(["analyze", str(log), "--out", str(out)], capsys)
+    assert code == 0
+    man = json.loads((out / "manifest.json").read_text())
+    assert man["counts"]["/cam/image_raw"]["skipped_undecodable"] == 1
+    assert len(pd.read_parquet(out / "frames.parquet")) == 5
+    assert "undecodable" in stdout
+
+
+def test_without_intrinsics_says_how_to_pass_k(tmp_path: Path,
+                                               capsys: pytest.CaptureFixture[str]) -> None:
+    log = write_recording(tmp_path / "nok.mcap", "mcap", n=4, with_info=False)
+    out = tmp_path / "res"
+    code, stdout, _ = run(["analyze", str(log), "--out", str(out)], capsys)
+    assert code == 0
+    assert "--intrinsics fx,fy,cx,cy" in stdout
+    df = pd.read_parquet(out / "frames.parquet")
+    assert df["inliers_e"].isna().all()
+    assert df["n_keypoints"].notna().all()
+    code, _, _ = run(["analyze", str(log), "--intrinsics", "120,120,80,60", "--out",
+                      str(tmp_path / "k"), "-q"], capsys)
+    assert code == 0
+    man = json.loads((tmp_path / "k" / "manifest.json").read_text())
+    assert man["intrinsics"]["source"] == "--intrinsics"
+
+
+def test_bad_intrinsics_option_is_exit_2(tmp_path: Path,
+                                         capsys: pytest.CaptureFixture[str]) -> None:
+    log = write_recording(tmp_path / "run.mcap", "mcap", n=2)
+    code, _, err = run(["analyze", str(log), "--intrinsics", "1,2,3"], capsys)
+    assert code == 2 and "--intrinsics" in err
+
+
+def test_camera_info_yaml(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    log = write_recording(tmp_path / "nok.mcap", "mcap", n=3, with_info=False)
+    yaml_path = tmp_path / "cam.yaml"
+    yaml_path.write_text(
+        "image_width: 160\nimage_height: 120\ncamera_name: cam\n"
+        "camera_matrix: {rows: 3, cols: 3, data: [120, 0, 80, 0, 120, 60, 0, 0, 1]}\n"
+        "distortion_model: plumb_bob\n"
+        "distortion_coefficients: {rows: 1, cols: 5, data: [0.01, 0, 0, 0, 0]}\n")
+    code, _, _ = run(["analyze", str(log), "--camera-info", str(yaml_path), "--out",
+                      str(tmp_path / "r"), "-q"], capsys)
+    assert code == 0
+    man = json.loads((tmp_path / "r" / "manifest.json").read_text())
+    assert man["intrinsics"]["model"] == "plumb_bob"
+    assert man["intrinsics"]["D"][0] == pytest.approx(0.01)
+
+
+def test_same_recording_gives_the_same_table(tmp_path: Path) -> None:
+    log = write_recording(tmp_path / "det.mcap", "mcap", n=6)
+    a = frontdiag.analyze(log)
+    b = frontdiag.analyze(log)
+    cols = [c for c in a.columns if not c.startswith("ms_")]
+    pd.testing.assert_frame_equal(a[cols], b[cols])
+
+
+def test_python_api_returns_a_dataframe_with_manifest(tmp_path: Path) -> None:
+    log = write_recording(tmp_path / "api.mcap", "mcap", n=4)
+    df = frontdiag.analyze(log, max_frames=3)
+    assert isinstance(df, pd.DataFrame) and len(df) == 3
+    assert df.attrs["manifest"]["selection"]["max_frames"] == 3
+
+
+def test_input_is_never_modified(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    log = write_recording(tmp_path / "ro.bag", "bag", n=4)
+    before = hashlib.sha256(log.read_bytes()).hexdigest()
+    assert run(["analyze", str(log), "--out", str(tmp_path / "r"), "-q"], capsys)[0] == 0
+    assert hashlib.sha256(log.read_bytes()).hexdigest() == before
+
+
+def test_refuses_to_write_into_the_input_folder(tmp_path: Path,
+                                                capsys: pytest.CaptureFixture[str]) -> None:
+    log = write_recording(tmp_path / "bagdir", "ros2-db3", n=2)
+    code, _, err = run(["analyze", str(log), "--out", str(log / "res")], capsys)
+    assert code == 2 and "input recording" in err
+
+
+def test_info_lists_topics_and_choice(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    log = write_recording(tmp_path / "run.bag", "bag", n=5, with_info=False)
+    code, stdout, _ = run(["info", str(log), "--json"], capsys)
+    assert code == 0
+    data = json.loads(stdout)
+    topics = {t["topic"]: t for t in data["topics"]}
+    assert topics["/cam/image_raw"]["count"] == 5
+    assert topics["/cam/image_raw"]["rate_hz"] == pytest.approx(20.0)
+    assert data["analyze_would_use"]["camera"] == "/cam/image_raw"
+    assert any("CameraInfo" in o for o in data["oddities"])
+
+
+def test_info_reports_stamp_gaps_and_non_monotonic_stamps(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    stamps = [T0 + i * 50_000_000 for i in range(10)]
+    stamps[6] = stamps[4]  # goes backwards
+    log = write_recording(tmp_path / "odd.mcap", "mcap", n=10, stamps=stamps)
+    code, stdout, _ = run(["info", str(log), "--json"], capsys)
+    assert code == 0
+    odd = " ".join(json.loads(stdout)["oddities"])
+    assert "non-monotonic" in odd
+
+
+@pytest.mark.skipif(not (SHARED / "imu_bags_ros1").exists(), reason="../shared/data absent")
+def test_real_imu_bag_has_no_usable_sensor_topics(capsys: pytest.CaptureFixture[str]) -> None:
+    bag = SHARED / "imu_bags_ros1" / "sparkfun_razor.bag"
+    code, _, err = run(["analyze", str(bag)], capsys)
+    assert code == 2 and "no usable sensor topics" in err
+    code, stdout, _ = run(["info", str(bag)], capsys)
+    assert code == 0 and "/imu/data_raw" in stdout
+
+
+@pytest.mark.skipif(not (SHARED / "rosbags_evo").exists(), reason="../shared/data absent")
+def test_real_ros2_db3_and_ros1_bags_open(capsys: pytest.CaptureFixture[str]) -> None:
+    for p in (SHARED / "rosbags_evo" / "tf_example", SHARED / "rosbags_evo" / "tf_example.bag",
+              SHARED / "rosbags_evo" / "tf_example" / "tf_example.db3"):
+        code, stdout, _ = run(["info", str(p), "--json"], capsys)
+        assert code == 0
+        counts = {t["topic"]: t["count"] for t in json.loads(stdout)["topics"]}
+        assert counts["/tf"] == 517
+
+
+def test_intrinsics_with_distortion_are_used(tmp_path: Path) -> None:
+    from recording_factory import K
+
+    from frontdiag.io.writer import RecordingWriter, camera_info_msg
+
+    log = tmp_path / "dist.mcap"
+    with RecordingWriter(log, "mcap") as w:
+        for i in range(3):
+            t = T0 + i * 50_000_000
+            w.write("/cam/image_raw", "sensor_msgs/msg/Image", image_msg(frame(i), "mono8", t), t)
+            w.write("/cam/camera_info", "sensor_msgs/msg/CameraInfo",
+                    camera_info_msg(K, 160, 120, t, D=np.array([0.1, -0.05, 0, 0]),
+                                    model="equidistant"), t)
+    df = frontdiag.analyze(log)
+    assert df.attrs["manifest"]["intrinsics"]["model"] == "equidistant"
