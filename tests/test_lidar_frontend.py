@@ -174,26 +174,38 @@ def test_odometry_is_the_prior_when_it_covers_the_scans() -> None:
     assert np.linalg.norm(err[:3, 3]) < 0.05
 
 
-def test_planar_scans_register_in_three_dof() -> None:
-    scene = synth.hall_scene()
-    twist = np.array([0.0, 0.0, 0.2, 1.0, 0.0, 0.0])
+def planar_rows(scene: list, twist: np.ndarray, n: int = 6) -> tuple[list[dict], LidarFrontend]:
     fe = LidarFrontend()
     rows = []
-    for k in range(6):
+    for k in range(n):
         f = synth.planar_scan(scene, pose0=se3_exp(twist * 0.1 * k), twist=twist, seed=k)
         ang = f["angle_min"] + f["angle_increment"] * np.arange(len(f["ranges"]))
         r = f["ranges"].astype(np.float64)
-        xyz = np.c_[r * np.cos(ang), r * np.sin(ang), np.zeros_like(r)]
-        xyz[~np.isfinite(r)] = np.nan
+        hit = np.isfinite(r)
+        xyz = np.full((len(r), 3), np.nan)
+        xyz[hit] = np.c_[r[hit] * np.cos(ang[hit]), r[hit] * np.sin(ang[hit]), np.zeros(hit.sum())]
         rows.append(fe.process(as_scan(xyz, f["time_increment"] * np.arange(len(r)), k,
                                        planar=True)))
+    return rows, fe
+
+
+def test_planar_scans_register_in_three_dof() -> None:
+    rows, fe = planar_rows(synth.hall_scene(), np.array([0.0, 0.0, 0.2, 1.0, 0.0, 0.0]))
     assert [r["status"] for r in rows] == ["first_scan"] + ["ok"] * 5
     pose = fe.pose
     assert pose[2, 3] == 0.0 and pose[2, 2] == 1.0  # z, roll and pitch stay out of a 2D scan
     assert abs(pose[0, 3] - 0.5) < 0.1
-    assert rows[-1]["lidar_weak_dir"] in ("yaw (rotation about z)", "translation along x (forward)",
-                                          "translation along y (left)") \
-        or "coupled" in rows[-1]["lidar_weak_dir"] or "mostly" in rows[-1]["lidar_weak_dir"]
+    for row in rows[1:]:
+        assert row["lidar_eig_min"] > 500 and row["lidar_cond"] < 100
+
+
+def test_planar_corridor_is_flagged_with_its_axis() -> None:
+    rows, fe = planar_rows(synth.corridor_scene(), np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0]))
+    for row in rows[1:]:
+        assert row["icp_fitness"] > 0.95 and row["icp_rmse_m"] < 0.02  # a perfect fit ...
+        assert row["lidar_eig_min"] < 50 and row["lidar_cond"] > 900   # ... constraining nothing
+        assert row["lidar_weak_dir"] == "translation along x (forward)"
+    assert abs(fe.pose[0, 3]) < 0.1  # and the pose did not follow the 0.5 m drive along it
 
 
 @pytest.mark.parametrize(("vec", "planar", "words"), [

@@ -14,6 +14,7 @@ registered from the previous pose (the only case where the initial guess is the 
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from dataclasses import dataclass
@@ -31,6 +32,7 @@ from frontdiag.records import LidarScan
 from frontdiag.timing import Clock, StageTimer
 
 NAN = float("nan")
+_log = logging.getLogger(__name__)
 
 EXTRA_COLUMNS: tuple[str, ...] = ("icp_max_corr_m", "ms_lidar_map", "lidar_prior")
 """Columns this frontend adds beyond ``metrics.LIDAR_COLUMNS`` (declared in metrics.METRICS)."""
@@ -147,6 +149,7 @@ class LidarFrontend:
         try:
             status = self._process(scan, row, timer)
         except Exception as exc:  # never let one scan stop the run; the row says why
+            _log.warning("LiDAR scan %d on %s failed", scan.index, scan.topic, exc_info=True)
             status = f"error: {type(exc).__name__}: {exc}"
         row["status"] = status
         row["ms_lidar_preprocess"] = timer.ms.get("preprocess", 0.0)
