@@ -225,12 +225,13 @@ def _quadrant(he: np.ndarray, par: np.ndarray, p: Params) -> np.ndarray:
 
 
 def _keyframe_read(df: pd.DataFrame, p: Params) -> pd.DataFrame:
-    """H/E and parallax as read at the most-parallax row of each row's reference keyframe.
+    """H/E and parallax as read where each row's reference keyframe saw the most parallax.
 
     H/E carries no information at low parallax: with a tiny baseline any scene fits a
     homography within the RANSAC threshold, so every frame just after a keyframe change reads
     H/E ~ 0.95. Degeneracy is a property of the scene between two keyframes, so each row takes
-    the quadrant of the row of its reference that saw the most parallax. Rows without a
+    the medians of H/E and parallax over the upper half (by parallax) of the rows sharing its
+    reference; the median keeps one noisy frame from deciding the interval. Rows without a
     `ref_frame` (or with read_at = "frame") are read on their own.
     """
     he, par = col(df, "h_over_e"), col(df, "parallax_med_deg")
@@ -240,11 +241,11 @@ def _keyframe_read(df: pd.DataFrame, p: Params) -> pd.DataFrame:
     if p.get("read_at", "frame") != "keyframe" or not valid.any():
         return out
     pos = np.flatnonzero(valid)
-    best = pd.Series(par[pos], index=pos).groupby(ref[pos]).idxmax()
-    best_of_ref = dict(zip(best.index.tolist(), best.to_numpy().tolist(), strict=True))
-    src = np.array([best_of_ref[r] for r in ref[pos]], dtype=int)
-    out.loc[pos, "kf_h_over_e"] = he[src]
-    out.loc[pos, "kf_parallax_med_deg"] = par[src]
+    rows = pd.DataFrame({"ref": ref[pos], "par": par[pos], "he": he[pos]})
+    upper = rows[rows["par"] >= rows.groupby("ref")["par"].transform("median")]
+    read = upper.groupby("ref")[["he", "par"]].median()
+    out.loc[pos, "kf_h_over_e"] = read["he"].reindex(ref[pos]).to_numpy()
+    out.loc[pos, "kf_parallax_med_deg"] = read["par"].reindex(ref[pos]).to_numpy()
     return out
 
 
@@ -269,7 +270,7 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     kf_he, kf_par = _v(row, "kf_h_over_e"), _v(row, "kf_parallax_med_deg")
     out = [f"this frame: h_over_e {_fmt(he)}, parallax_med_deg {_fmt(par)}"]
     if not np.isnan(kf_he) and (kf_he != he or kf_par != par):
-        out.append(f"read at the reference keyframe's most-parallax frame: h_over_e "
+        out.append(f"read over the reference keyframe's higher-parallax frames: h_over_e "
                    f"{_fmt(kf_he)}, parallax {_fmt(kf_par)} (H/E is uninformative at low "
                    "parallax)")
         he, par = kf_he, kf_par
