@@ -169,3 +169,17 @@ def test_laserscan_to_planar_cloud(ros: int) -> None:
     np.testing.assert_allclose(scan.time_rel_s, 0.001 * keep, atol=1e-9)
     np.testing.assert_array_equal(scan.intensity, keep.astype(np.float32))
     assert scan.planar and scan.n_raw == 7 and scan.t_ns == 5_000_000_000
+
+
+def test_data_given_as_bytes_is_read_too() -> None:
+    from types import SimpleNamespace
+
+    xyz = cloud().astype(np.float32)
+    d = pointcloud2_dict({"x": xyz[:, 0], "y": xyz[:, 1], "z": xyz[:, 2]}, t_ns=T_NS)
+    msg = SimpleNamespace(
+        header=SimpleNamespace(stamp=SimpleNamespace(sec=1, nanosec=0), frame_id="lidar"),
+        height=d["height"], width=d["width"], point_step=d["point_step"],
+        row_step=d["row_step"], is_bigendian=False, data=bytes(d["data"]),
+        fields=[SimpleNamespace(**f) for f in d["fields"]])
+    scan = decode_pointcloud2(msg, topic="/p", index=0, log_ns=0)
+    np.testing.assert_allclose(scan.xyz, xyz)

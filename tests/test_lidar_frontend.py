@@ -221,3 +221,13 @@ def test_planar_corridor_is_flagged_with_its_axis() -> None:
 ])
 def test_weak_direction_in_words(vec: list[float], planar: bool, words: str) -> None:
     assert describe_direction(np.array(vec, float), planar) == words
+
+
+def test_odometry_history_does_not_grow_with_the_recording() -> None:
+    scans, _ = sequence("hall")
+    fe = LidarFrontend()
+    for k in range(-1, 200):  # 20 s of odometry at 10 Hz, arriving ahead of the scans
+        fe.add_odometry(T0 + k * PERIOD_NS + PERIOD_NS // 2, se3_exp(TWIST * 0.1 * k))
+    for s in scans:
+        fe.process(s)
+    assert len(fe._odom_t) < 200 - len(scans) + 5

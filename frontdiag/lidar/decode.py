@@ -154,7 +154,9 @@ def decode_pointcloud2(msg: Any, *, topic: str, index: int, log_ns: int) -> Lida
     dtype, names = _point_dtype(msg, topic)
     height, width = int(msg.height), int(msg.width)
     point_step, row_step = int(msg.point_step), int(msg.row_step)
-    data = np.asarray(msg.data, dtype=np.uint8).reshape(-1)
+    raw = msg.data
+    data = np.frombuffer(raw, dtype=np.uint8) if isinstance(raw, bytes | bytearray | memoryview) \
+        else np.asarray(raw, dtype=np.uint8).reshape(-1)
     n_raw = height * width
     if n_raw == 0:
         xyz = np.zeros((0, 3))

@@ -268,6 +268,13 @@ class LidarFrontend:
     def _push_pose(self, t_ns: int, T: np.ndarray) -> None:
         self._poses.append((int(t_ns), T.copy()))
         del self._poses[:-2]
+        # odometry older than the pose just before this one is never read again: keep memory
+        # flat over a long recording
+        keep_from = int(np.searchsorted(np.asarray(self._odom_t, dtype=np.int64),
+                                        self._poses[0][0], side="right")) - 1
+        if keep_from > 0:
+            del self._odom_t[:keep_from]
+            del self._odom_T[:keep_from]
 
 
 def score_alignment(lmap: LocalMap, down: np.ndarray, T: np.ndarray, tau: float,
