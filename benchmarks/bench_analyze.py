@@ -13,6 +13,11 @@ process, to show memory does not grow with the length of the log.
 from __future__ import annotations
 
 import argparse
+import os
+
+# one core: OpenCV, OpenMP and BLAS threads pinned before numpy and cv2 load
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 import json
 import subprocess
 import sys
