@@ -135,6 +135,22 @@ def _select_spread(cell: np.ndarray, response: np.ndarray, budget: int) -> np.nd
     return np.concatenate([full, order[best]])
 
 
+def _runs(mask: np.ndarray) -> list[tuple[int, int, int]]:
+    """(row, first col, end col) of every horizontal run of True in a 2-D boolean grid."""
+    out = []
+    for r, line in enumerate(mask.tolist()):
+        c = 0
+        while c < len(line):
+            if line[c]:
+                start = c
+                while c < len(line) and line[c]:
+                    c += 1
+                out.append((r, start, c))
+            else:
+                c += 1
+    return out
+
+
 class OrbExtractor:
     """Bucketed ORB with the adaptive per-cell FAST threshold; one pyramid per frame."""
 
@@ -169,41 +185,51 @@ class OrbExtractor:
         cols, rows = self.grid
         cw, ch = (x1 - x0) / cols, (y1 - y0) / rows
 
-        def candidates(det: cv2.FastFeatureDetector, mask: np.ndarray | None = None
-                       ) -> tuple[list, np.ndarray, np.ndarray]:
-            kps = det.detect(img, mask)
-            if not kps:
-                return [], np.zeros((0, 2), np.float32), np.zeros(0, np.intp)
-            xy = cv2.KeyPoint_convert(kps).reshape(-1, 2)
+        def cells_of(xy: np.ndarray) -> np.ndarray:
             ok = (xy[:, 0] >= x0) & (xy[:, 0] < x1) & (xy[:, 1] >= y0) & (xy[:, 1] < y1)
-            cx = np.clip(((xy[:, 0] - x0) / cw).astype(np.intp), 0, cols - 1)
-            cy = np.clip(((xy[:, 1] - y0) / ch).astype(np.intp), 0, rows - 1)
-            cell = np.where(ok, cy * cols + cx, -1)
-            return list(kps), xy, cell
+            cx = np.minimum(((xy[:, 0] - x0) * (1.0 / cw)).astype(np.intp), cols - 1)
+            cy = np.minimum(((xy[:, 1] - y0) * (1.0 / ch)).astype(np.intp), rows - 1)
+            return np.where(ok, cy * cols + cx, -1)
 
-        kps, xy, cell = candidates(self._fast)
-        empty = np.flatnonzero(np.bincount(cell[cell >= 0], minlength=cols * rows) == 0)
+        kps = list(self._fast.detect(img))
+        xy = cv2.KeyPoint_convert(kps).reshape(-1, 2) if kps else np.zeros((0, 2), np.float32)
+        cell = cells_of(xy)
         n_strong = len(kps)
-        if empty.size:
-            # Retry the empty cells at the low threshold; one masked call per level.
-            mask = np.zeros_like(img)
-            for c in empty.tolist():
-                cy, cx = divmod(c, cols)
-                mask[int(y0 + cy * ch) - 3:int(y0 + (cy + 1) * ch) + 3,
-                     int(x0 + cx * cw) - 3:int(x0 + (cx + 1) * cw) + 3] = 255
-            wk, wxy, wcell = candidates(self._fast_min, mask)
-            wcell = np.where(np.isin(wcell, empty), wcell, -1)
-            kps += wk
-            xy = np.concatenate([xy, wxy])
-            cell = np.concatenate([cell, wcell])
+        empty = np.bincount(cell[cell >= 0], minlength=cols * rows) == 0
+        # Retry the empty cells at the low threshold, on their pixels only: one FAST call per
+        # horizontal run of empty cells (with the 3-pixel ring margin FAST needs around it).
+        if empty.any():
+            offsets = []
+            for r, c0, c1 in _runs(empty.reshape(rows, cols)):
+                ya, yb = max(int(y0 + r * ch) - 3, 0), int(y0 + (r + 1) * ch) + 4
+                xa, xb = max(int(x0 + c0 * cw) - 3, 0), int(x0 + c1 * cw) + 4
+                weak = self._fast_min.detect(img[ya:yb, xa:xb])
+                if weak:
+                    kps += weak
+                    offsets.append(np.broadcast_to(np.float32([xa, ya]), (len(weak), 2)))
+            if offsets:
+                wxy = cv2.KeyPoint_convert(kps[n_strong:]).reshape(-1, 2) + np.concatenate(offsets)
+                wcell = cells_of(wxy)
+                wcell[~empty[wcell]] = -1  # only cells that were empty (and not outside: -1)
+                # runs of neighbouring rows overlap by the margin: a corner there is seen twice
+                _, first = np.unique(wxy, axis=0, return_index=True)
+                if len(first) < len(wxy):
+                    dup = np.ones(len(wxy), bool)
+                    dup[first] = False
+                    wcell[dup] = -1
+                xy = np.concatenate([xy, wxy])
+                cell = np.concatenate([cell, wcell])
         valid = np.flatnonzero(cell >= 0)
         if valid.size == 0:
             return [], np.zeros((0, 2), np.float32), np.zeros(0, np.float32), 0
         response = np.fromiter(map(_RESPONSE, kps), np.float32, len(kps))[valid]
         pick = _select_spread(cell[valid], response, budget)
         chosen = valid[pick]
-        n_weak = int(np.count_nonzero(chosen >= n_strong))
-        return [kps[i] for i in chosen.tolist()], xy[chosen], response[pick], n_weak
+        out = [kps[i] for i in chosen.tolist()]
+        weak_pos = np.flatnonzero(chosen >= n_strong)
+        for j in weak_pos.tolist():  # retry keypoints were found in a sub-image
+            out[j].pt = (float(xy[chosen[j], 0]), float(xy[chosen[j], 1]))
+        return out, xy[chosen], response[pick], len(weak_pos)
 
     def detect_and_compute(self, gray: np.ndarray) -> Features:
         """Detect, orient and describe; never raises on blank or tiny images."""
