@@ -81,10 +81,11 @@ class LocalMap:
         self.normals = np.asarray(self._cloud.normals())[:, :3].copy()
         merged = np.concatenate(list(self._measured), axis=0)
         if len(merged) >= self.normal_neighbors:
-            cloud, self._score_tree = self._build(merged)
+            cloud = small_gicp.voxelgrid_sampling(merged, self.voxel_m, self.num_threads)
+            self._score_tree = small_gicp.KdTree(cloud, self.num_threads)
             self.score_points = np.asarray(cloud.points())[:, :3].copy()
-            self.score_normals = np.asarray(cloud.normals())[:, :3].copy()
-            self.score_planar = self._planarity(self.score_points, self._score_tree)
+            self.score_normals, self.score_planar = self._planarity(self.score_points,
+                                                                    self._score_tree)
         else:
             self._score_tree = None
             self.score_points = np.zeros((0, 3))
@@ -93,6 +94,7 @@ class LocalMap:
         self.version += 1
 
     def _build(self, merged: np.ndarray) -> tuple[Any, Any]:
+        """Voxel grid, KD-tree and normals of the registration cloud."""
         cloud = small_gicp.voxelgrid_sampling(merged, self.voxel_m, self.num_threads)
         tree = small_gicp.KdTree(cloud, self.num_threads)
         small_gicp.estimate_normals(cloud, tree, self.normal_neighbors, self.num_threads)
@@ -108,20 +110,22 @@ class LocalMap:
         elev = np.arctan2(pts[:, 2], np.hypot(pts[:, 0], pts[:, 1]))[idx]
         return (elev.max(axis=1) - elev.min(axis=1)) >= RING_SPREAD_RAD
 
-    def _planarity(self, points: np.ndarray, tree: Any) -> np.ndarray:
-        """Which points sit on a compact, two-dimensional, flat patch (covariance eigenvalues
-        e0 <= e1 <= e2 of the k nearest neighbours: e1 >= PLANAR_SPREAD e2, e0 <= PLANAR_FLAT e1,
-        k-th neighbour within PLANAR_RADIUS voxels)."""
+    def _planarity(self, points: np.ndarray, tree: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Normals (smallest principal direction of the k nearest neighbours) and which points
+        sit on a compact, two-dimensional, flat patch (covariance eigenvalues e0 <= e1 <= e2:
+        e1 >= PLANAR_SPREAD e2, e0 <= PLANAR_FLAT e1, k-th neighbour within PLANAR_RADIUS
+        voxels)."""
         n = len(points)
         k = min(self.normal_neighbors, n)
         if k < 5:
-            return np.zeros(n, dtype=bool)
+            return np.zeros((n, 3)), np.zeros(n, dtype=bool)
         idx, sq = _neighbours(points, tree, k, self.num_threads)
         nb = points[idx]
         nb = nb - nb.mean(axis=1, keepdims=True)
-        e = np.linalg.eigvalsh(np.einsum("nki,nkj->nij", nb, nb) / k)
+        e, vec = np.linalg.eigh(np.einsum("nki,nkj->nij", nb, nb) / k)
         compact = sq[:, -1] <= (PLANAR_RADIUS * self.voxel_m) ** 2
-        return compact & (e[:, 1] >= PLANAR_SPREAD * e[:, 2]) & (e[:, 0] <= PLANAR_FLAT * e[:, 1])
+        planar = compact & (e[:, 1] >= PLANAR_SPREAD * e[:, 2]) & (e[:, 0] <= PLANAR_FLAT * e[:, 1])
+        return np.ascontiguousarray(vec[:, :, 0]), planar
 
     def sg_cloud(self) -> Any:
         return self._cloud
