@@ -1,0 +1,214 @@
+"""Warehouse building blocks: floors, walls, shelving runs, the dock door, the dock corridor.
+
+Every builder takes a ``detail`` factor that scales texel density with the image size (a
+160x120 test render does not need 200 texels per metre), and a seeded generator. What a scene
+contains decides its label, so each builder documents what a camera and a LiDAR can see in it:
+
+- ``unique`` shelving: cartons of random size, depth and print in every bay — textured, 3D,
+  unambiguous. Healthy for both sensors.
+- ``repetitive`` shelving: every bay holds the same cartons carrying literally the same texture
+  array and the same bin label, on identical uprights every 1.2 m. Feature count stays normal
+  while nearest-neighbour matching becomes ambiguous.
+- ``labels`` shelving: blank shelf backs and plain uprights, plus one bank of printed labels at
+  eye height on bins at staggered depths: all texture in one narrow band of the image.
+- ``blank`` shelving: blank backs, plain uprights, no stock. Geometry for the LiDAR, nothing for
+  a detector.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Callable
+
+import numpy as np
+
+from frontdiag.sim import textures as T
+from frontdiag.sim.world import World
+
+UPRIGHT_PITCH = 1.2
+SHELF_DEPTH = 0.9
+SHELF_HEIGHT = 3.2
+LEVELS = (0.12, 1.0, 1.85, 2.7)
+DOWN = [0.0, 0.0, -1.0]
+
+
+class Builder:
+    """Adds warehouse parts to a :class:`World` at a texel density scaled by ``detail``."""
+
+    def __init__(self, world: World, rng: np.random.Generator, detail: float = 1.0) -> None:
+        self.w = world
+        self.rng = rng
+        self.detail = float(np.clip(detail, 0.2, 2.0))
+        # grey level of blank paint; plain scenes keep every blank part within a few levels
+        # of it so no corner between two blank parts reaches FAST's threshold of 20
+        self.plain = 150.0
+
+    def ppm(self, base: float) -> float:
+        return base * self.detail
+
+    def _size(self, width_m: float, height_m: float, base_ppm: float) -> tuple[int, int]:
+        p = self.ppm(base_ppm)
+        return max(4, round(height_m * p)), max(4, round(width_m * p))
+
+    # -- surfaces ------------------------------------------------------------------------
+    def floor(self, x0: float, x1: float, y0: float, y1: float, *, textured: bool = True,
+              z: float = 0.0) -> None:
+        h, w = self._size(x1 - x0, y1 - y0, 60)
+        tex = (T.concrete(h, w, self.rng, level=115, contrast=22) if textured
+               else T.blank(h, w, self.rng, level=self.plain - 8, contrast=1.0))
+        self.w.quad([x0, y0, z], [1, 0, 0], [0, 1, 0], x1 - x0, y1 - y0, tex,
+                    kind="floor" if textured else "blank")
+
+    def ceiling(self, x0: float, x1: float, y0: float, y1: float, z: float = 6.0) -> None:
+        h, w = self._size(x1 - x0, y1 - y0, 6)
+        self.w.quad([x0, y0, z], [1, 0, 0], [0, 1, 0], x1 - x0, y1 - y0,
+                    T.blank(h, w, self.rng, level=self.plain - 12, contrast=1.0), kind="blank")
+
+    def wall_x(self, x0: float, x1: float, y: float, height: float = 5.0, *,
+               style: str = "poster", facing: int = -1) -> None:
+        """A wall along x at ``y``; ``style`` poster (signage, textured), concrete or blank."""
+        h, w = self._size(x1 - x0, height, 80 if style != "blank" else 8)
+        tex = self._wall_tex(h, w, style)
+        if facing < 0:  # seen from -y side
+            self.w.quad([x0, y, height], [1, 0, 0], DOWN, x1 - x0, height, tex, kind=style)
+        else:
+            self.w.quad([x1, y, height], [-1, 0, 0], DOWN, x1 - x0, height, tex, kind=style)
+
+    def wall_y(self, y0: float, y1: float, x: float, height: float = 5.0, *,
+               style: str = "poster", facing: int = -1) -> None:
+        """A wall along y at ``x``; ``facing`` -1 is seen from the -x side."""
+        h, w = self._size(y1 - y0, height, 80 if style != "blank" else 8)
+        tex = self._wall_tex(h, w, style)
+        if facing < 0:
+            self.w.quad([x, y1, height], [0, -1, 0], DOWN, y1 - y0, height, tex, kind=style)
+        else:
+            self.w.quad([x, y0, height], [0, 1, 0], DOWN, y1 - y0, height, tex, kind=style)
+
+    def _wall_tex(self, h: int, w: int, style: str) -> np.ndarray:
+        if style == "poster":
+            return T.poster(h, w, self.rng)
+        if style == "concrete":
+            return T.concrete(h, w, self.rng, level=140, contrast=10)
+        return T.blank(h, w, self.rng, level=self.plain + 6, contrast=1.0)
+
+    # -- shelving ------------------------------------------------------------------------
+    def shelving(self, x0: float, x1: float, y_front: float, side: int, content: str, *,
+                 bank: list[tuple[float, float]] | None = None) -> None:
+        """A run of pallet racking along x, its front face at ``y_front``.
+
+        ``side`` +1 puts the rack at y >= y_front (left of a robot driving +x along y=0),
+        -1 at y <= y_front. ``content``: unique, repetitive, labels, blank (module docstring).
+        ``bank`` lists the x ranges holding label banks.
+        """
+        s = float(side)
+        yb = y_front + s * SHELF_DEPTH
+        plain = content in ("labels", "blank")
+        # back panel (blank shelf backs)
+        h, w = self._size(x1 - x0, SHELF_HEIGHT, 8)
+        back = T.blank(h, w, self.rng, level=self.plain, contrast=1.0)
+        if s > 0:
+            self.w.quad([x0, yb, SHELF_HEIGHT], [1, 0, 0], DOWN, x1 - x0, SHELF_HEIGHT, back,
+                        kind="blank")
+        else:
+            self.w.quad([x1, yb, SHELF_HEIGHT], [-1, 0, 0], DOWN, x1 - x0, SHELF_HEIGHT, back,
+                        kind="blank")
+        ppm_u = self.ppm(200)
+        up_tex = (T.blank(max(4, int(SHELF_HEIGHT * 20)), 4, self.rng, level=self.plain - 6,
+                          contrast=1.0)
+                  if plain else T.upright(max(8, int(SHELF_HEIGHT * ppm_u)),
+                                          max(4, int(0.08 * ppm_u)),
+                                          holes=55.0 if content == "repetitive" else 12.0))
+        beam_h = 0.1
+        beam_tex_rep = T.label(*self._size(0.12, 0.06, 400), self.rng)
+        tote = T.bin_front(*self._size(0.2, 0.18, 300), self.rng)
+        rep_cartons = [tote, tote]
+        xs = np.arange(x0, x1 + 1e-6, UPRIGHT_PITCH)
+        for xk in xs:
+            lo = [xk - 0.04, min(y_front, y_front + s * 0.08), 0.0]
+            hi = [xk + 0.04, max(y_front, y_front + s * 0.08), SHELF_HEIGHT]
+            self.w.box(lo, hi, lambda hh, ww, t=up_tex: t, ppm=ppm_u,
+                       faces="xX" + ("y" if s > 0 else "Y"), kind="blank" if plain else "upright")
+        for zl in LEVELS:
+            # beam across the whole run, just below the level
+            bh, bw = self._size(x1 - x0, beam_h, 40)
+            beam = T.blank(bh, bw, self.rng, level=self.plain - 4 if plain else 95,
+                           contrast=1.0)
+            zt = zl
+            if s > 0:
+                self.w.quad([x0, y_front, zt], [1, 0, 0], DOWN, x1 - x0, beam_h, beam, kind="blank")
+            else:
+                self.w.quad([x1, y_front, zt], [-1, 0, 0], DOWN, x1 - x0, beam_h, beam,
+                            kind="blank")
+            for xa, xb in itertools.pairwise(xs):
+                self._bay(xa + 0.05, xb - 0.05, y_front, s, zl, content, bank,
+                          rep_cartons, beam_tex_rep)
+
+    def _bay(self, xa: float, xb: float, y_front: float, s: float, zl: float, content: str,
+             bank: list[tuple[float, float]] | None, rep_cartons: list[np.ndarray],
+             beam_label: np.ndarray) -> None:
+        rng = self.rng
+        faces = "xX" + ("y" if s > 0 else "Y") + "z"
+        if content == "unique":
+            x = xa + rng.uniform(0.0, 0.1)
+            while x < xb - 0.2:
+                wd = min(rng.uniform(0.25, 0.55), xb - x)
+                ht = rng.uniform(0.25, 0.7)
+                dp = rng.uniform(0.05, 0.45)
+                d0 = y_front + s * dp
+                d1 = y_front + s * min(SHELF_DEPTH - 0.05, dp + rng.uniform(0.3, 0.6))
+                self.w.box([x, min(d0, d1), zl], [x + wd, max(d0, d1), zl + ht],
+                           lambda hh, ww: T.cardboard(hh, ww, rng), ppm=self.ppm(160),
+                           faces=faces, kind="carton")
+                x += wd + rng.uniform(0.02, 0.2)
+            lab = T.label(*self._size(0.12, 0.06, 400), rng)
+            self._beam_label(xa + 0.1, y_front, s, zl, lab)
+        elif content == "repetitive":
+            # identical bins side by side and stacked two high: the nearest copy of any corner
+            # sits at the same depth, a bin width away, and looks exactly the same
+            x = xa + 0.02
+            d0 = y_front + s * 0.02
+            d1 = y_front + s * 0.45
+            while x + 0.2 <= xb:
+                for k, zb in enumerate(np.arange(zl, zl + 0.75, 0.2)):
+                    tex = rep_cartons[k % 2]
+                    self.w.box([x, min(d0, d1), zb], [x + 0.2, max(d0, d1), zb + 0.18],
+                               lambda hh, ww, t=tex: t, ppm=self.ppm(300),
+                               faces="y" if s > 0 else "Y", kind="repetitive")
+                x += 0.22
+            self._beam_label(xa + 0.1, y_front, s, zl, beam_label)
+        elif content == "labels":
+            if not bank or not any(b0 <= xa < b1 for b0, b1 in bank) or zl != LEVELS[1]:
+                return
+            # rows of small bins with printed fronts, at staggered depths (not one plane),
+            # from 0.72 m to 1.6 m: eye height for the camera at 1.1 m
+            k = 0
+            for zr in np.arange(0.72, 1.6, 0.13):
+                x = xa + 0.02
+                while x < xb - 0.15:
+                    dp = (0.02, 0.22, 0.1, 0.32, 0.16)[k % 5]
+                    d0 = y_front + s * dp
+                    d1 = y_front + s * (dp + 0.3)
+                    self.w.box([x, min(d0, d1), zr], [x + 0.17, max(d0, d1), zr + 0.11],
+                               lambda hh, ww: T.label(hh, ww, rng), ppm=self.ppm(500),
+                               faces=("y" if s > 0 else "Y"), kind="label")
+                    x += 0.19
+                    k += 1
+
+    def _beam_label(self, x: float, y_front: float, s: float, zl: float, tex: np.ndarray) -> None:
+        y = y_front - s * 0.002
+        if s > 0:
+            self.w.quad([x, y, zl], [1, 0, 0], DOWN, 0.12, 0.06, tex, kind="label")
+        else:
+            self.w.quad([x + 0.12, y, zl], [-1, 0, 0], DOWN, 0.12, 0.06, tex, kind="label")
+
+    def pallets(self, x: float, y: float, n: int) -> None:
+        """A few stacks of cartons on the floor (3D texture for open areas)."""
+        rng = self.rng
+        for _ in range(n):
+            cx, cy = x + rng.uniform(-1.5, 1.5), y + rng.uniform(-1.5, 1.5)
+            sx, sy, sz = rng.uniform(0.6, 1.2), rng.uniform(0.6, 1.2), rng.uniform(0.5, 1.6)
+            self.w.box([cx, cy, 0.0], [cx + sx, cy + sy, sz], lambda hh, ww: T.cardboard(hh, ww, rng),
+                       ppm=self.ppm(120), kind="carton")
+
+
+BuildFn = Callable[[Builder], None]
