@@ -231,3 +231,21 @@ def test_odometry_history_does_not_grow_with_the_recording() -> None:
     for s in scans:
         fe.process(s)
     assert len(fe._odom_t) < 200 - len(scans) + 5
+
+
+def test_a_scan_that_matches_nothing_is_low_overlap_and_keeps_the_prediction() -> None:
+    scans, _ = sequence("hall")
+    fe = LidarFrontend()
+    for s in scans[:4]:
+        fe.process(s)
+    before = fe.pose
+    far = synth.spinning_scan([synth.room((-3, -3, -1), (3, 3, 2))], beams=32, columns=1024,
+                              seed=9)[0]
+    far = far + np.array([0.0, 0.0, 30.0])  # a small room floating above the hall
+    row = fe.process(as_scan(far, None, 4))
+    assert row["status"] == "low_overlap"
+    assert row["icp_fitness"] < 0.3
+    step = inv(before) @ fe.pose
+    # the prediction: this scan has no per-point time, so its pose is at its stamp, 50 ms after
+    # the previous pose (taken at mid-sweep), and at 1.5 m/s the prior moves it 7.5 cm
+    assert np.linalg.norm(step[:3, 3]) == pytest.approx(0.075, abs=0.01)
