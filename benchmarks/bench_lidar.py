@@ -88,7 +88,7 @@ def worker_frontdiag(path: Path, backend: str) -> dict:
         rows.append(fe.process(scan))
         walls.append(time.perf_counter() - w0)
         cpus.append(time.process_time() - c0)
-        poses.append(fe.pose)
+        poses.append(fe.pose if fe.pose is not None else np.eye(4))
     steady = slice(2, None)  # skip the first scan (map bootstrap) and the first registration
     res = _summary(walls[steady], cpus[steady], len(scans[0][0]))
     res.update(_travel_error(inv(poses[0]) @ poses[-1], len(scans)))

@@ -78,10 +78,9 @@ def describe_direction(vec: np.ndarray, planar: bool = False) -> str:
     "translation along x (forward)" or "yaw (rotation about z) coupled with translation ..."."""
     v = np.asarray(vec, dtype=np.float64)
     v = v / (np.linalg.norm(v) or 1.0)
-    if planar:
-        rot, trans, rot_axes, trans_axes = v[:1], v[1:], (2,), (0, 1)
-    else:
-        rot, trans, rot_axes, trans_axes = v[:3], v[3:], (0, 1, 2), (0, 1, 2)
+    rot_axes: tuple[int, ...] = (2,) if planar else (0, 1, 2)
+    trans_axes: tuple[int, ...] = (0, 1) if planar else (0, 1, 2)
+    rot, trans = v[:len(rot_axes)], v[len(rot_axes):]
     share_t = float(trans @ trans)
     t_words = _words(trans, trans_axes, rotation=False)
     r_words = _words(rot, rot_axes, rotation=True)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
 
@@ -95,8 +96,8 @@ def beam_elevations(beams: int, fov_deg: tuple[float, float] = (-15.0, 15.0)) ->
 
 def spinning_scan(scene: Sequence[Box], *, beams: int = 16, columns: int = 360,
                   fov_deg: tuple[float, float] = (-15.0, 15.0), period_s: float = 0.1,
-                  pose0: np.ndarray | None = None, twist: Sequence[float] | None = None,
-                  range_noise_m: float = 0.01, max_range_m: float = 100.0,
+                  pose0: np.ndarray | None = None,
+                  twist: Sequence[float] | np.ndarray | None = None, range_noise_m: float = 0.01, max_range_m: float = 100.0,
                   seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """One organised sweep: ``xyz`` (beams, columns, 3) with NaN for no return, and per-point
     time in seconds since the sweep start (beams, columns).
@@ -128,7 +129,7 @@ def spinning_scan(scene: Sequence[Box], *, beams: int = 16, columns: int = 360,
 
 def planar_scan(scene: Sequence[Box], *, n_rays: int = 1081, fov_deg: float = 270.0,
                 period_s: float = 0.025, pose0: np.ndarray | None = None,
-                twist: Sequence[float] | None = None, range_noise_m: float = 0.005,
+                twist: Sequence[float] | np.ndarray | None = None, range_noise_m: float = 0.005,
                 range_max_m: float = 30.0, seed: int = 0) -> dict:
     """Fields of a ``sensor_msgs/LaserScan`` (ranges inf where nothing is hit) from one sweep of a
     2D scanner at height 0."""
@@ -158,7 +159,7 @@ def pointcloud2_dict(columns: Mapping[str, np.ndarray], *, t_ns: int, frame_id: 
     ``height`` > 1 makes an organised cloud; ``pad_to`` pads each point to that many bytes;
     ``row_pad`` appends bytes to every row, so ``row_step`` > ``width * point_step``.
     """
-    order = ">" if bigendian else "<"
+    order: Literal[">", "<"] = ">" if bigendian else "<"
     names, formats, offsets, fields = [], [], [], []
     off = 0
     n = None
