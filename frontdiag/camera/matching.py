@@ -18,12 +18,13 @@ import numpy as np
 N_BITS = 256
 
 
+_SIGNS = (np.unpackbits(np.arange(256, dtype=np.uint8)[:, None], axis=1)
+          .astype(np.float32) * 2.0 - 1.0)  # byte value -> its 8 bits as -1/+1, MSB first
+
+
 def descriptor_signs(des: np.ndarray) -> np.ndarray:
     """(N, 32) uint8 ORB descriptors -> (N, 256) float32 in {-1, +1}; computed once per frame."""
-    if len(des) == 0:
-        return np.zeros((0, N_BITS), np.float32)
-    bits = np.unpackbits(des, axis=1).astype(np.float32)
-    return bits * 2.0 - 1.0
+    return np.take(_SIGNS, des.ravel(), axis=0).reshape(len(des), N_BITS)
 
 
 def hamming_matrix(q_signs: np.ndarray, t_signs: np.ndarray) -> np.ndarray:
