@@ -1,7 +1,7 @@
 """Photometric checks at tracked features (lesson, chapter 4).
 
-For every feature matched between the previous and the current frame, an 8x8 patch is taken
-around the keypoint in each image. The residual I2 - I1 over those pixels shows an exposure
+For the features matched between the previous and the current frame (at most 256, evenly
+spaced), an 8x8 patch is taken around the keypoint in each image. The residual I2 - I1 over those pixels shows an exposure
 step (a 20% gain on a 120-level pixel gives 24 levels where a tracked pixel normally sits at
 3-5), and the affine brightness model I2 = a*I1 + b fitted over the same patches names it.
 
