@@ -5,7 +5,7 @@
 Renders a small-motion sequence of textured synthetic frames (frontdiag.camera.synthetic.walk),
 then, single-threaded (cv2.setNumThreads(1), BLAS pinned to one thread):
 
-* ORB alone: cv2.ORB_create(1000, 1.2, 8).detectAndCompute on every frame;
+* ORB alone: cv2.ORB.create(1000, 1.2, 8).detectAndCompute on every frame;
 * the frontend: CameraFrontend.process on every frame (detect, match, geometry, photometric);
 * the per-stage breakdown from the rows' ms_* columns;
 * the matching alternatives that were measured before choosing one (1000 x 1000 ORB).
@@ -23,18 +23,18 @@ import os
 for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")
 
-import argparse  # noqa: E402
-import math  # noqa: E402
-import time  # noqa: E402
-from collections.abc import Callable  # noqa: E402
+import argparse
+import math
+import time
+from collections.abc import Callable
 
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
+import cv2
+import numpy as np
 
-from frontdiag.camera import synthetic  # noqa: E402
-from frontdiag.camera.frontend import CameraFrontend, CameraParams  # noqa: E402
-from frontdiag.camera.matching import descriptor_signs, match  # noqa: E402
-from frontdiag.records import CameraFrame, Intrinsics  # noqa: E402
+from frontdiag.camera import synthetic
+from frontdiag.camera.frontend import CameraFrontend, CameraParams
+from frontdiag.camera.matching import descriptor_signs, match
+from frontdiag.records import CameraFrame, Intrinsics
 
 CLOCK = time.process_time  # CPU time of this (single-threaded) process: robust to other load
 
@@ -93,7 +93,7 @@ def main() -> None:
 
     frames, K = synthetic.walk(args.frames, (args.width, args.height))
     n = len(frames)
-    orb = cv2.ORB_create(nfeatures=1000, scaleFactor=1.2, nlevels=8)
+    orb = cv2.ORB.create(nfeatures=1000, scaleFactor=1.2, nlevels=8)
     rows: list[dict] = []
 
     def orb_pass() -> None:

@@ -121,7 +121,7 @@ def test_repeated_texture_raises_the_ratio_reject_rate() -> None:
     tile = S.texture(60, 80, seed=9, shapes=12)
     tiled = np.tile(tile, (8, 8))[:480, :640]
     unique = S.texture(480, 640, seed=10)
-    shift = np.float32([[1, 0, 3], [0, 1, 2]])
+    shift = np.array([[1, 0, 3], [0, 1, 2]], np.float32)
     rr_tiled = run([tiled, cv2.warpAffine(tiled, shift, (640, 480))])[1]["ratio_reject_rate"]
     rr_unique = run([unique, cv2.warpAffine(unique, shift, (640, 480))])[1]["ratio_reject_rate"]
     assert rr_tiled > 0.7 > rr_unique + 0.2  # chapter 2: ~85% on repetitive structure

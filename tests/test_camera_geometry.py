@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from functools import cache
 
 import cv2
@@ -20,9 +21,13 @@ SIZE = (800, 600)
 K = S.look_K(*SIZE)
 
 
+SCENES: dict[str, Callable[..., list[S.Plane]]] = {"room": S.room, "wall": S.wall,
+                                                    "cluster": S.cluster}
+
+
 @cache
 def scene(name: str) -> list[S.Plane]:
-    return {"room": S.room, "wall": S.wall, "cluster": S.cluster}[name](seed=1)
+    return SCENES[name](seed=1)
 
 
 def view(name: str, R: np.ndarray, C: np.ndarray) -> np.ndarray:

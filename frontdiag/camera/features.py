@@ -16,6 +16,7 @@ ORB-SLAM's extractor, built from OpenCV pieces so that the pyramid is computed o
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from operator import attrgetter
 
@@ -135,6 +136,11 @@ def _select_spread(cell: np.ndarray, response: np.ndarray, budget: int) -> np.nd
     return np.concatenate([full, order[best]])
 
 
+def _points(kps: Sequence[cv2.KeyPoint]) -> np.ndarray:
+    """(N, 2) float32 positions of keypoints (one C++ call)."""
+    return np.asarray(cv2.KeyPoint.convert(kps), np.float32).reshape(-1, 2)
+
+
 def _runs(mask: np.ndarray) -> list[tuple[int, int, int]]:
     """(row, first col, end col) of every horizontal run of True in a 2-D boolean grid."""
     out = []
@@ -161,9 +167,9 @@ class OrbExtractor:
         self.scale_factor = scale_factor
         self.budgets = level_budgets(n_features, n_levels, scale_factor)
         self.grid = (grid_cols, grid_rows)
-        self._fast = cv2.FastFeatureDetector_create(fast_threshold, True)
-        self._fast_min = cv2.FastFeatureDetector_create(fast_threshold_min, True)
-        self._orb = cv2.ORB_create(nfeatures=n_features, scaleFactor=scale_factor, nlevels=1,
+        self._fast = cv2.FastFeatureDetector.create(fast_threshold, True)
+        self._fast_min = cv2.FastFeatureDetector.create(fast_threshold_min, True)
+        self._orb = cv2.ORB.create(nfeatures=n_features, scaleFactor=scale_factor, nlevels=1,
                                    edgeThreshold=EDGE, patchSize=PATCH_SIZE)
 
     def pyramid(self, gray: np.ndarray) -> list[np.ndarray]:
@@ -192,7 +198,7 @@ class OrbExtractor:
             return np.where(ok, cy * cols + cx, -1)
 
         kps = list(self._fast.detect(img))
-        xy = cv2.KeyPoint_convert(kps).reshape(-1, 2) if kps else np.zeros((0, 2), np.float32)
+        xy = _points(kps) if kps else np.zeros((0, 2), np.float32)
         cell = cells_of(xy)
         n_strong = len(kps)
         empty = np.bincount(cell[cell >= 0], minlength=cols * rows) == 0
@@ -206,9 +212,9 @@ class OrbExtractor:
                 weak = self._fast_min.detect(img[ya:yb, xa:xb])
                 if weak:
                     kps += weak
-                    offsets.append(np.broadcast_to(np.float32([xa, ya]), (len(weak), 2)))
+                    offsets.append(np.broadcast_to(np.array([xa, ya], np.float32), (len(weak), 2)))
             if offsets:
-                wxy = cv2.KeyPoint_convert(kps[n_strong:]).reshape(-1, 2) + np.concatenate(offsets)
+                wxy = _points(kps[n_strong:]) + np.concatenate(offsets)
                 wcell = cells_of(wxy)
                 wcell[~empty[wcell]] = -1  # only cells that were empty (and not outside: -1)
                 # runs of neighbouring rows overlap by the margin: a corner there is seen twice
@@ -250,7 +256,7 @@ class OrbExtractor:
             if des is None or not kps_out:
                 continue
             if len(kps_out) != len(kps):  # ORB dropped some near the border: re-read them
-                xy = cv2.KeyPoint_convert(kps_out).reshape(-1, 2)
+                xy = _points(kps_out)
                 resp = np.array([k.response for k in kps_out], np.float32)
                 ang = np.array([k.angle for k in kps_out], np.float32)
                 weak = min(weak, len(kps_out))

@@ -29,7 +29,8 @@ def descriptor_signs(des: np.ndarray) -> np.ndarray:
 
 def hamming_matrix(q_signs: np.ndarray, t_signs: np.ndarray) -> np.ndarray:
     """Exact Hamming distances (float32) between every query and train descriptor."""
-    dot = cv2.gemm(q_signs, t_signs, 1.0, None, 0.0, flags=cv2.GEMM_2_T)
+    dot = cv2.gemm(q_signs, t_signs, 1.0, None, 0.0,  # type: ignore[call-overload]
+                   flags=cv2.GEMM_2_T)
     return (N_BITS - dot) * 0.5
 
 
@@ -62,7 +63,8 @@ def match(q_signs: np.ndarray, t_signs: np.ndarray, ratio: float = 0.8,
     nq, nt = len(q_signs), len(t_signs)
     if nq == 0 or nt < 2:
         return Matches.none(nq)
-    dot = cv2.gemm(q_signs, t_signs, 1.0, None, 0.0, flags=cv2.GEMM_2_T)
+    dot = cv2.gemm(q_signs, t_signs, 1.0, None, 0.0,  # type: ignore[call-overload]
+                   flags=cv2.GEMM_2_T)
     rows = np.arange(nq)
     j1 = dot.argmax(axis=1)
     s1 = dot[rows, j1]
