@@ -143,11 +143,16 @@ def _runs(hit: np.ndarray, max_gap: int) -> list[tuple[int, int]]:
     return list(zip(starts.tolist(), ends.tolist(), strict=True))
 
 
-def _exact_int(table: pd.DataFrame, name: str, pos: int) -> int:
-    """An integer cell without a float round trip (t_ns exceeds float precision); -1 if absent."""
+def _raw(table: pd.DataFrame, name: str) -> np.ndarray:
+    """A column as stored (int64 t_ns stays exact); NaN-filled object array where absent."""
     if name not in table.columns:
-        return -1
-    v = table[name].iloc[pos]
+        return np.full(len(table), np.nan, dtype=object)
+    return table[name].to_numpy()
+
+
+def _exact_int(values: np.ndarray, pos: int) -> int:
+    """An integer cell without a float round trip (t_ns exceeds float precision); -1 if absent."""
+    v = values[pos]
     return -1 if pd.isna(v) else int(v)
 
 
@@ -158,6 +163,14 @@ def _fmt(v: float) -> str:
 def _episodes(table: pd.DataFrame, rules: tuple[Rule, ...], hits: dict[str, np.ndarray],
               t_rel: np.ndarray, max_gap: int) -> pd.DataFrame:
     records = []
+    frames, t_ns = _raw(table, "frame"), _raw(table, "t_ns")
+    cache: dict[str, np.ndarray] = {}
+
+    def metric(name: str) -> np.ndarray:
+        if name not in cache:
+            cache[name] = col(table, name)
+        return cache[name]
+
     for cond in CONDITIONS:
         crules = [r for r in rules if r.condition == cond]
         if not crules:
@@ -172,16 +185,16 @@ def _episodes(table: pd.DataFrame, rules: tuple[Rule, ...], hits: dict[str, np.n
                 worst = max(fired, key=lambda r: (SEVERITY_RANK[r.severity], -fired.index(r)))
                 peaks: dict[str, float] = {}
                 for r in fired:
-                    for metric, how in peak_spec(r).items():
+                    for name, how in peak_spec(r).items():
                         rows = in_ep[hits[r.id][in_ep]]
-                        peaks.setdefault(metric, _peak(col(table.iloc[rows], metric), how))
+                        peaks.setdefault(name, _peak(metric(name)[rows], how))
                 rec: dict[str, Any] = {
                     "condition": cond, "rule": worst.id, "rules": [r.id for r in fired],
                     "severity": worst.severity, "sensor": sensor, "topic": topic,
-                    "start_frame": _exact_int(table, "frame", span[0]),
-                    "end_frame": _exact_int(table, "frame", span[-1]),
-                    "start_t_ns": _exact_int(table, "t_ns", span[0]),
-                    "end_t_ns": _exact_int(table, "t_ns", span[-1]),
+                    "start_frame": _exact_int(frames, span[0]),
+                    "end_frame": _exact_int(frames, span[-1]),
+                    "start_t_ns": _exact_int(t_ns, span[0]),
+                    "end_t_ns": _exact_int(t_ns, span[-1]),
                     "start_t_rel_s": float(t_rel[span[0]]), "end_t_rel_s": float(t_rel[span[-1]]),
                     "n_frames": len(in_ep), "n_rows": len(span),
                 }
