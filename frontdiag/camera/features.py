@@ -122,18 +122,16 @@ def _select_spread(cell: np.ndarray, response: np.ndarray, budget: int) -> np.nd
     n = len(cell)
     if n <= budget:
         return np.arange(n)
-    weak = (255 - np.clip(response, 0, 255)).astype(np.int64)
+    weak = 255 - np.minimum(response, 255).astype(np.int64)
     order = np.argsort(cell.astype(np.int64) * 256 + weak)
     sc = cell[order]
-    starts = np.flatnonzero(np.r_[True, sc[1:] != sc[:-1]])
-    rank = np.arange(n) - np.repeat(starts, np.diff(np.r_[starts, n]))
+    rank = np.arange(n) - np.searchsorted(sc, sc)  # position within its cell, best first
     cum = np.cumsum(np.bincount(rank))
     last = int(np.searchsorted(cum, budget))  # the round in which the budget runs out
     full = order[rank < last]
-    tier = np.flatnonzero(rank == last)
-    need = budget - len(full)
-    best = tier[np.argsort(weak[order[tier]], kind="stable")[:need]]
-    return np.concatenate([full, order[best]])
+    tier = order[rank == last]
+    best = tier[np.argsort(weak[tier], kind="stable")[:budget - len(full)]]
+    return np.concatenate([full, best])
 
 
 def _points(kps: Sequence[cv2.KeyPoint]) -> np.ndarray:
