@@ -162,3 +162,7 @@ def test_keyframe_policy_fires_on_frame_count_and_parallax() -> None:
     fired = [r["keyframe_reason"] for r in moving[1:] if r["keyframe_reason"]]
     assert fired and set(fired) <= {"parallax", "tracked_share"}
     assert max(r["parallax_med_deg"] for r in moving[1:]) >= 1.0
+    # a steady walk keeps its translation direction against the same reference
+    same_ref = [r for r, prev in zip(moving[2:], moving[1:], strict=False)
+                if r["ref_frame"] == prev["ref_frame"]]
+    assert same_ref and all(r["t_dir_change_deg"] < 15 for r in same_ref)
