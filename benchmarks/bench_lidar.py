@@ -3,7 +3,8 @@
 Synthesises a drive through a ray-cast warehouse (60 x 40 m, racking, pallets) at 1.5 m/s while
 turning at 0.2 rad/s, as a 128 x 1800 sensor (230,400 points per sweep) and a 32 x 1024 one, then
 runs each pipeline in its own fresh process on the same scans and prints scans/s per core, the
-stage breakdown, the drift against the true trajectory and the process's peak RSS.
+stage breakdown, the drift against the true trajectory and each process's peak RSS (the pipeline
+plus the one scan in hand: workers read the scans from disk one at a time).
 
     OMP_NUM_THREADS=1 python benchmarks/bench_lidar.py            # both sizes, 20 scans each
     python benchmarks/bench_lidar.py --scans 40 --open3d          # also the Open3D backend
@@ -39,6 +40,8 @@ START = (-3.0, -10.0, 0.0)
 
 
 def synthesise(size: str, n: int, out: Path) -> None:
+    """Write scan k to ``out/xyz{k}.npy`` and ``out/t{k}.npy``; workers read one at a time, so
+    their peak RSS is the pipeline's plus one scan, not the whole sequence."""
     from frontdiag.lidar.se3 import se3_exp
     from frontdiag.lidar.synth import spinning_scan, warehouse_scene
 
@@ -46,20 +49,22 @@ def synthesise(size: str, n: int, out: Path) -> None:
     scene = warehouse_scene()
     pose0 = np.eye(4)
     pose0[:3, 3] = START
-    arrays = {}
+    out.mkdir(parents=True, exist_ok=True)
     for k in range(n):
         pose = pose0 @ se3_exp(TWIST * PERIOD_S * k)
         xyz, t = spinning_scan(scene, beams=beams, columns=cols, fov_deg=fov, pose0=pose,
                                twist=TWIST, period_s=PERIOD_S, seed=k)
         keep = np.isfinite(xyz).all(axis=-1)
-        arrays[f"xyz{k}"] = xyz[keep]
-        arrays[f"t{k}"] = t[keep]
-    np.savez(out, n=n, **arrays)
+        np.save(out / f"xyz{k}.npy", xyz[keep])
+        np.save(out / f"t{k}.npy", t[keep])
 
 
-def _load(path: Path) -> list[tuple[np.ndarray, np.ndarray]]:
-    z = np.load(path)
-    return [(z[f"xyz{k}"], z[f"t{k}"]) for k in range(int(z["n"]))]
+def _scans(path: Path):
+    """Yield (xyz, t) one scan at a time."""
+    k = 0
+    while (path / f"xyz{k}.npy").exists():
+        yield np.load(path / f"xyz{k}.npy"), np.load(path / f"t{k}.npy")
+        k += 1
 
 
 def _travel_error(est_rel: np.ndarray, n: int) -> dict:
@@ -78,10 +83,11 @@ def worker_frontdiag(path: Path, backend: str) -> dict:
     from frontdiag.lidar.se3 import inv
     from frontdiag.records import LidarScan
 
-    scans = _load(path)
     fe = LidarFrontend(LidarParams(backend=backend, num_threads=1))
     walls, cpus, rows, poses = [], [], [], []
-    for k, (xyz, t) in enumerate(scans):
+    n_points = 0
+    for k, (xyz, t) in enumerate(_scans(path)):
+        n_points = len(xyz)
         scan = LidarScan(index=k, t_ns=k * 100_000_000, log_ns=0, topic="/points", xyz=xyz,
                          time_rel_s=t, n_raw=len(xyz))
         w0, c0 = time.perf_counter(), time.process_time()
@@ -90,8 +96,8 @@ def worker_frontdiag(path: Path, backend: str) -> dict:
         cpus.append(time.process_time() - c0)
         poses.append(fe.pose if fe.pose is not None else np.eye(4))
     steady = slice(2, None)  # skip the first scan (map bootstrap) and the first registration
-    res = _summary(walls[steady], cpus[steady], len(scans[0][0]))
-    res.update(_travel_error(inv(poses[0]) @ poses[-1], len(scans)))
+    res = _summary(walls[steady], cpus[steady], n_points)
+    res.update(_travel_error(inv(poses[0]) @ poses[-1], len(poses)))
     ok = [r for r in rows[steady] if r["status"] == "ok"]
     for key in ("n_points_used", "icp_iters", "icp_fitness", "lidar_eig_min", "lidar_cond",
                 "deskew_m", "ms_lidar_preprocess", "ms_lidar_register", "ms_lidar_map"):
@@ -107,20 +113,21 @@ def worker_kiss(path: Path) -> dict:
 
     from frontdiag.lidar.se3 import inv
 
-    scans = _load(path)
     cfg = load_config(None)
     cfg.registration.max_num_threads = 1
     kiss = KissICP(cfg)
     walls, cpus, poses = [], [], []
-    for xyz, t in scans:
+    n_points = 0
+    for xyz, t in _scans(path):
+        n_points = len(xyz)
         stamps = (t - t.min()) / max(float(t.max() - t.min()), 1e-9)  # KISS wants [0, 1]
         w0, c0 = time.perf_counter(), time.process_time()
         kiss.register_frame(xyz, stamps)
         walls.append(time.perf_counter() - w0)
         cpus.append(time.process_time() - c0)
         poses.append(kiss.last_pose.copy())
-    res = _summary(walls[2:], cpus[2:], len(scans[0][0]))
-    res.update(_travel_error(inv(poses[0]) @ poses[-1], len(scans)))
+    res = _summary(walls[2:], cpus[2:], n_points)
+    res.update(_travel_error(inv(poses[0]) @ poses[-1], len(poses)))
     res["voxel_m"] = cfg.mapping.voxel_size
     return res
 
@@ -164,7 +171,7 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory() as tmp:
         for size in a.sizes:
-            path = Path(tmp) / f"{size}.npz"
+            path = Path(tmp) / size
             t0 = time.perf_counter()
             synthesise(size, a.scans, path)
             print(f"\n== {size}: {a.scans} scans synthesised in {time.perf_counter() - t0:.1f} s "
@@ -177,15 +184,19 @@ def main() -> None:
                 for name, worker in workers.items():
                     r = _spawn(["--worker", worker, "--data", str(path)])
                     best = runs.get(name)
-                    if best is None or ("error" not in r and (
-                            "error" in best or r["scans_per_cpu_s"] > best["scans_per_cpu_s"])):
+                    if best is None or "error" in best:
                         runs[name] = r
+                    elif "error" not in r:  # best CPU-time run; best wall-clock kept separately
+                        wall = max(best["scans_per_s"], r["scans_per_s"])
+                        if r["scans_per_cpu_s"] > best["scans_per_cpu_s"]:
+                            runs[name] = r
+                        runs[name]["scans_per_s"] = wall
             for name, r in runs.items():
                 if "error" in r:
                     print(f"  {name:22s} not run: {r['error']}")
                     continue
                 print(f"  {name:22s} {r['scans_per_cpu_s']:6.1f} scans/s per core (CPU time), "
-                      f"{r['scans_per_s']:5.1f} wall; median {r['ms_median']:6.1f} ms"
+                      f"{r['scans_per_s']:5.1f} wall (best run); median {r['ms_median']:6.1f} ms"
                       f"  p95 {r['ms_p95']:6.1f} ms  cpu/wall {r['cpu_per_wall']:.2f}"
                       f"  peak RSS {r['peak_rss_mb']:6.0f} MB  drift {r['drift_m'] * 100:5.1f} cm"
                       f" / {r['drift_deg']:.2f} deg over {r['travel_m']:.2f} m")
