@@ -257,7 +257,3 @@ class CameraFrontend:
                    ms_photometric=timer.ms.get("photometric", 0.0), ms_total=timer.total())
         return row
 
-
-def set_single_thread() -> None:
-    """Pin OpenCV to one thread (benchmarks and the one-core budget)."""
-    cv2.setNumThreads(1)
