@@ -249,3 +249,16 @@ def test_a_scan_that_matches_nothing_is_low_overlap_and_keeps_the_prediction() -
     # the prediction: this scan has no per-point time, so its pose is at its stamp, 50 ms after
     # the previous pose (taken at mid-sweep), and at 1.5 m/s the prior moves it 7.5 cm
     assert np.linalg.norm(step[:3, 3]) == pytest.approx(0.075, abs=0.01)
+
+
+def test_tracking_recovers_when_the_second_scan_matches_nothing() -> None:
+    scans, truth = sequence("hall")
+    far = synth.spinning_scan([synth.room((-3, -3, -1), (3, 3, 2))], beams=32, columns=1024,
+                              seed=9)[0] + np.array([0.0, 0.0, 30.0])
+    fe = LidarFrontend()
+    rows = [fe.process(scans[0]), fe.process(as_scan(far, None, 1))]
+    rows += [fe.process(s) for s in scans[2:]]
+    assert [r["status"] for r in rows[:2]] == ["first_scan", "low_overlap"]
+    assert all(r["status"] == "ok" for r in rows[2:])
+    err = inv(inv(truth[0]) @ truth[-1]) @ fe.pose
+    assert np.linalg.norm(err[:3, 3]) < 0.05

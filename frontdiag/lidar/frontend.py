@@ -251,9 +251,9 @@ class LidarFrontend:
         assert self._first_raw is not None and self._map is not None
         xyz, times = self._first_raw
         self._first_raw = None
-        if len(self._map) != 1 or len(self._poses) != 2:
+        if len(self._map) != 1 or len(self._poses) < 2:
             return
-        (t0, T0), (t1, T1) = self._poses
+        (t0, T0), (t1, T1) = self._poses[-2:]
         span = (t1 - t0) * 1e-9
         if span <= 0:
             return
@@ -262,7 +262,7 @@ class LidarFrontend:
                                                         self.params.num_threads).points())[:, :3]
         fresh = LocalMap(voxel, self.params.map_keyframes, self.params.normal_neighbors,
                          self.params.num_threads)
-        fresh.insert(down @ T0[:3, :3].T + T0[:3, 3], down)
+        fresh.insert(down, down)  # the first keyframe defines the map frame (identity pose)
         self._map = fresh
 
     def _push_pose(self, t_ns: int, T: np.ndarray) -> None:
