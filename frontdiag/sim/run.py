@@ -265,7 +265,7 @@ def simulate(scenario: str, out: Path | str, fmt: str = "mcap",
             if kind == 0:
                 if part != ae_part:  # settle the auto-exposure on a new area, unrecorded
                     ae_part = part
-                    if ae.enabled and parts[part].auto_exposure:
+                    if ae.enabled:
                         rad = radiance_at(t, part)
                         for _ in range(20):
                             if not ae.update(float(np.mean(rad)) * ae.gain * 200.0):

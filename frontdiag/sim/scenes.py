@@ -64,7 +64,7 @@ class Builder:
         self.w.quad([x0, y0, z], [1, 0, 0], [0, 1, 0], x1 - x0, y1 - y0,
                     T.blank(h, w, self.rng, level=self.plain - 12, contrast=1.0), kind="blank")
 
-    def wall_x(self, x0: float, x1: float, y: float, height: float = 5.0, *,
+    def wall_x(self, x0: float, x1: float, y: float, height: float = 6.0, *,
                style: str = "poster", facing: int = -1) -> None:
         """A wall along x at ``y``; ``style`` poster (signage, textured), concrete or blank."""
         h, w = self._size(x1 - x0, height, 80 if style != "blank" else 8)
@@ -74,7 +74,7 @@ class Builder:
         else:
             self.w.quad([x1, y, height], [-1, 0, 0], DOWN, x1 - x0, height, tex, kind=style)
 
-    def wall_y(self, y0: float, y1: float, x: float, height: float = 5.0, *,
+    def wall_y(self, y0: float, y1: float, x: float, height: float = 6.0, *,
                style: str = "poster", facing: int = -1) -> None:
         """A wall along y at ``x``; ``facing`` -1 is seen from the -x side."""
         h, w = self._size(y1 - y0, height, 80 if style != "blank" else 8)
