@@ -127,52 +127,64 @@ def _matching_table_explain(row: Mapping[str, Any], p: Params) -> list[str]:
 
 # --- chapter 4: exposure step -------------------------------------------------------------------
 
-def _photometric_state(df: pd.DataFrame, p: Params) -> tuple[np.ndarray, np.ndarray]:
-    """(disturbed, clean) per row: the photometric residual against residual_step, or the
-    ratio-test rejection against reject_exposure where the residual is not computable. A row
-    with neither is neither disturbed nor clean."""
-    res, rej = col(df, "photo_residual_med"), col(df, "ratio_reject_rate")
-    with np.errstate(invalid="ignore"):
-        by_res = ~np.isnan(res)
-        by_rej = ~by_res & ~np.isnan(rej)
-        disturbed = (by_res & (res >= p["residual_step"])) | (by_rej & (rej >= p["reject_exposure"]))
-        clean = (by_res & (res < p["residual_step"])) | (by_rej & (rej < p["reject_exposure"]))
-    return disturbed, clean
+def _step_at(i: int, res: np.ndarray, rej: np.ndarray, p: Params) -> tuple[bool, int]:
+    """Whether row i jumps like an exposure step, and after how many rows it recovers
+    (0: not within recovery_frames, -1: the data ends first).
+
+    The photometric residual decides where it is computable: the row's residual reaches
+    residual_step and at least residual_jump times the row before (a one-frame jump, which blur
+    building up over several frames is not); it has recovered once the residual is back below
+    the midpoint of the levels before and at the step. Without a residual the ratio-test
+    rejection stands in (crossing reject_exposure, recovered below it).
+    """
+    n = len(res)
+    window = max(int(p["recovery_frames"]), 1)
+    prev = i - 1
+    if not np.isnan(res[i]):
+        before = res[prev] if prev >= 0 else np.nan
+        jump = res[i] >= p["residual_step"] and (
+            np.isnan(before) or res[i] >= p["residual_jump"] * before)
+        level = max(p["residual_step"], ((0.0 if np.isnan(before) else before) + res[i]) / 2)
+        ahead = res[i + 1:i + 1 + window]
+        with np.errstate(invalid="ignore"):
+            recovered = ahead < level
+    else:
+        before = rej[prev] if prev >= 0 else np.nan
+        jump = bool(rej[i] >= p["reject_exposure"]) and not before >= p["reject_exposure"]
+        with np.errstate(invalid="ignore"):
+            recovered = rej[i + 1:i + 1 + window] < p["reject_exposure"]
+    if recovered.any():
+        return bool(jump), int(np.argmax(recovered)) + 1
+    return bool(jump), -1 if i + window >= n else 0
 
 
 def _exposure_context(df: pd.DataFrame, p: Params) -> pd.DataFrame:
-    res = col(df, "photo_residual_med")
-    _, clean = _photometric_state(df, p)
-    window = max(int(p["recovery_frames"]), 1)
-    recovers = np.zeros(len(df))
-    for i in range(len(df)):
-        ahead = clean[i + 1:i + 1 + window]
-        recovers[i] = (np.argmax(ahead) + 1) if ahead.any() else (
-            0 if i + window < len(df) else -1)
+    res, rej = col(df, "photo_residual_med"), col(df, "ratio_reject_rate")
+    steps = [_step_at(i, res, rej, p) for i in range(len(df))]
     return pd.DataFrame({"prev_photo_residual_med": np.concatenate([[np.nan], res[:-1]]),
-                         "recovers_after_frames": recovers})
+                         "jumps": [float(j) for j, _ in steps],
+                         "recovers_after_frames": [float(r) for _, r in steps]})
 
 
 def _exposure_step(df: pd.DataFrame, p: Params) -> np.ndarray:
     """One frame wide with clean frames on both sides (ch4), recovering within 2-3 (ch2).
 
-    A candidate is a row with |d_mean_intensity| > dmean_step that is photometrically disturbed
-    while the row before was not (blur builds up over several frames). It is a step when a clean
-    row follows within recovery_frames; the disturbed rows in between belong to it. A ramp that
-    stays disturbed longer (lights fading, flicker) is another brightness violation, not a step.
+    A candidate row has |d_mean_intensity| > dmean_step while matching survives (rejection
+    below reject_max: a gain step rejects ~55%, a scene cut ~100%). It is a step when its
+    photometric residual jumps in one frame and recovers within recovery_frames; the disturbed
+    rows in between belong to it. A ramp that stays disturbed longer (lights fading, flicker) is
+    another brightness violation, not a step.
     """
     dm = np.abs(col(df, "d_mean_intensity"))
-    disturbed, clean = _photometric_state(df, p)
-    prev_disturbed = np.concatenate([[False], disturbed[:-1]])
+    res, rej = col(df, "photo_residual_med"), col(df, "ratio_reject_rate")
     with np.errstate(invalid="ignore"):
-        candidate = (dm > p["dmean_step"]) & disturbed & ~prev_disturbed
-    window = max(int(p["recovery_frames"]), 1)
+        candidate = (dm > p["dmean_step"]) & ~(rej >= p["reject_max"])
     out = np.zeros(len(df), dtype=bool)
     for i in np.flatnonzero(candidate).tolist():
-        ahead = clean[i + 1:i + 1 + window]
-        if ahead.any():
-            out[i:i + 1 + int(np.argmax(ahead))] = True
-        elif i + window >= len(df):  # the data ends before it could recover: keep the step
+        jump, after = _step_at(i, res, rej, p)
+        if jump and after > 0:
+            out[i:i + after] = True
+        elif jump and after < 0:  # the data ends before it could recover: keep the step
             out[i] = True
     return out
 
@@ -191,8 +203,12 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
         out.append(f"residual after the affine model {res_aff:.1f} {verdict}".rstrip())
     prev = _v(row, "prev_photo_residual_med")
     rec = _v(row, "recovers_after_frames")
+    rej = _v(row, "ratio_reject_rate")
+    if not np.isnan(rej) and rej >= p["reject_max"]:
+        out.append(f"ratio_reject_rate {rej:.0%} >= {p['reject_max']:.0%}: matching collapsed "
+                   "(a gain step rejects ~55%); a scene cut or repetition, not an exposure step")
     if rec > 0:
-        out.append(f"clean again {rec:.0f} frame(s) later (a step recovers within "
+        out.append(f"recovered {rec:.0f} frame(s) later (a step recovers within "
                    f"{p['recovery_frames']:g})")
     elif rec == 0:
         out.append(f"still disturbed {p['recovery_frames']:g} frames later: a ramp (lights "
@@ -200,12 +216,13 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     if np.isnan(prev):
         out.append("no residual on the frame before: the motion-blur look-alike cannot be "
                    "ruled out by onset")
-    elif prev < p["residual_step"]:
-        out.append(f"motion blur ruled out: the residual was clean ({prev:.1f}) on the frame "
-                   "before; blur degrades over several frames, a step is one frame wide")
+    elif _v(row, "jumps") == 1.0:
+        out.append(f"motion blur ruled out: the residual jumped from {prev:.1f} in one frame; "
+                   "blur degrades over several frames, a step is one frame wide")
     else:
-        out.append(f"residual already {prev:.1f} on the frame before: a gradual rise reads as "
-                   "motion blur (check gyro rate), not an exposure step")
+        out.append(f"residual {prev:.1f} on the frame before: no one-frame jump (x"
+                   f"{p['residual_jump']:g}), which reads as gradual degradation (motion blur: "
+                   "check gyro rate), not an exposure step")
     return out
 
 
@@ -407,8 +424,8 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
           "jumping with it, clean before and clean again within 2-3 frames",
           "frame", "camera",
           ("d_mean_intensity", "photo_residual_med", "ratio_reject_rate", "affine_gain"),
-          {"dmean_step": _NUM, "residual_step": _NUM, "reject_exposure": _NUM,
-           "recovery_frames": _NUM},
+          {"dmean_step": _NUM, "residual_step": _NUM, "residual_jump": _NUM,
+           "reject_exposure": _NUM, "reject_max": _NUM, "recovery_frames": _NUM},
           {"d_mean_intensity": "absmax", "photo_residual_med": "max", "affine_gain": "absdev1"},
           {"dmean_step": "d_mean_intensity", "residual_step": "photo_residual_med",
            "reject_exposure": "ratio_reject_rate"},
