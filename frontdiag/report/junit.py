@@ -12,8 +12,6 @@ from pathlib import Path
 from frontdiag.verdicts.engine import Verdicts
 from frontdiag.verdicts.gate import GateResult
 
-_RULE_PREFIXES = ("FD-",)
-
 
 def _episode_lines(result: Verdicts, rule_id: str) -> list[str]:
     eps = result.episodes

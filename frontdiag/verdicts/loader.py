@@ -11,7 +11,7 @@ import copy
 import logging
 import tomllib
 from collections.abc import Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -48,7 +48,6 @@ class Ruleset:
     run: RunConfig
     sources: tuple[str, ...] = ()
     overrides: str | None = None
-    notes: tuple[str, ...] = field(default_factory=tuple)
 
     @property
     def frame_rules(self) -> tuple[Rule, ...]:

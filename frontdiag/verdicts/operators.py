@@ -19,7 +19,6 @@ class Operator:
     arity: int
     """0: no value; 1: one number; 2: a [low, high] pair."""
     apply: Callable[[np.ndarray, object], np.ndarray]
-    words: str
 
 
 def _pair(v: object) -> tuple[float, float]:
@@ -38,16 +37,16 @@ def _outside(x: np.ndarray, v: object) -> np.ndarray:
 
 
 OPERATORS: dict[str, Operator] = {op.symbol: op for op in [
-    Operator("<", 1, lambda x, v: x < v, "below"),
-    Operator("<=", 1, lambda x, v: x <= v, "at most"),
-    Operator(">", 1, lambda x, v: x > v, "above"),
-    Operator(">=", 1, lambda x, v: x >= v, "at least"),
-    Operator("==", 1, lambda x, v: x == v, "equal to"),
-    Operator("!=", 1, lambda x, v: ~np.isnan(x) & (x != v), "not equal to"),
-    Operator("between", 2, _between, "between (inclusive)"),
-    Operator("outside", 2, _outside, "outside"),
-    Operator("is_nan", 0, lambda x, v: np.isnan(x), "not computable"),
-    Operator("not_nan", 0, lambda x, v: ~np.isnan(x), "computable"),
+    Operator("<", 1, lambda x, v: x < v),
+    Operator("<=", 1, lambda x, v: x <= v),
+    Operator(">", 1, lambda x, v: x > v),
+    Operator(">=", 1, lambda x, v: x >= v),
+    Operator("==", 1, lambda x, v: x == v),
+    Operator("!=", 1, lambda x, v: ~np.isnan(x) & (x != v)),
+    Operator("between", 2, _between),
+    Operator("outside", 2, _outside),
+    Operator("is_nan", 0, lambda x, v: np.isnan(x)),
+    Operator("not_nan", 0, lambda x, v: ~np.isnan(x)),
 ]}
 
 
