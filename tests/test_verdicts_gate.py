@@ -145,6 +145,13 @@ def test_baseline_of_another_recording_is_refused(tmp_path, ruleset) -> None:
     now.attrs["input"] = "/logs/aisle7.mcap"
     with pytest.raises(ConfigError, match="same recording"):
         gate(evaluate(now, ruleset), baseline=base)
+    # the manifest that analyze attaches to its table is read the same way
+    now = frames(100)
+    now.attrs["manifest"] = {"input": {"path": "/logs/aisle7.mcap", "backend": "mcap"}}
+    with pytest.raises(ConfigError, match="made from dock.mcap, not aisle7.mcap"):
+        gate(evaluate(now, ruleset), baseline=base)
+    now.attrs["manifest"] = {"input": {"path": "/logs/dock.mcap"}}
+    assert gate(evaluate(now, ruleset), baseline=base).exit_code == 0
 
 
 def test_missing_baseline_is_a_config_error(tmp_path, failing) -> None:

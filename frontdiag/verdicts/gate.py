@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import pandas as pd
@@ -127,15 +127,19 @@ def _read_result_table(result_dir: Path) -> pd.DataFrame:
         raise ConfigError(f"{path}: cannot read the table ({exc})") from None
 
 
-def _manifest_input(result_dir: Path) -> str | None:
-    try:
-        data = json.loads((result_dir / "manifest.json").read_text())
-    except (OSError, ValueError):
-        return None
-    value = data.get("input") if isinstance(data, dict) else None
+def _input_name(manifest: Any) -> str | None:
+    """The recording's file name from a manifest ({"input": path or {"path": ...}})."""
+    value = manifest.get("input") if isinstance(manifest, dict) else None
     if isinstance(value, dict):
         value = value.get("path") or value.get("name")
     return Path(str(value)).name if value else None
+
+
+def _manifest_input(result_dir: Path) -> str | None:
+    try:
+        return _input_name(json.loads((result_dir / "manifest.json").read_text()))
+    except (OSError, ValueError):
+        return None
 
 
 def _condition_share(table: pd.DataFrame, cond: str) -> float:
@@ -160,11 +164,12 @@ def baseline_regressions(result: Verdicts, baseline_dir: Path) -> list[str]:
     if "conditions" not in old.columns:
         old = evaluate(old, result.ruleset).table
     if baseline_dir.is_dir():
-        now_input = result.table.attrs.get("input")
+        attrs = result.table.attrs
+        now_input = _input_name(attrs.get("manifest")) or _input_name(attrs)
         old_input = _manifest_input(baseline_dir)
-        if now_input and old_input and Path(str(now_input)).name != old_input:
+        if now_input and old_input and now_input != old_input:
             raise ConfigError(f"--baseline {baseline_dir} was made from {old_input}, not "
-                              f"{Path(str(now_input)).name}: compare runs of the same recording")
+                              f"{now_input}: compare runs of the same recording")
     cfg = result.ruleset.run.baseline
     out: list[str] = []
     for metric, tol in cfg.metric_median_rel_tol.items():
