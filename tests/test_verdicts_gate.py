@@ -148,7 +148,7 @@ def test_baseline_of_another_recording_is_refused(tmp_path, ruleset) -> None:
     # the manifest that analyze attaches to its table is read the same way
     now = frames(100)
     now.attrs["manifest"] = {"input": {"path": "/logs/aisle7.mcap", "backend": "mcap"}}
-    with pytest.raises(ConfigError, match="made from dock.mcap, not aisle7.mcap"):
+    with pytest.raises(ConfigError, match=r"made from dock\.mcap, not aisle7\.mcap"):
         gate(evaluate(now, ruleset), baseline=base)
     now.attrs["manifest"] = {"input": {"path": "/logs/dock.mcap"}}
     assert gate(evaluate(now, ruleset), baseline=base).exit_code == 0
