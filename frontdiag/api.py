@@ -55,6 +55,11 @@ class AnalysisOptions:
     stride: int = 1
     camera_params: Any = None  # frontdiag.camera.frontend.CameraParams
     lidar_params: Any = None  # frontdiag.lidar.frontend.LidarParams
+    rules: bool = True  # evaluate the failure taxonomy (rules/*.toml) over the table
+    rules_dir: str | None = None
+    rules_overrides: str | None = None
+    select: list[str] | None = None
+    ignore: list[str] | None = None
 
 
 @dataclass
@@ -79,6 +84,8 @@ class Analysis:
     notes: list[str] = field(default_factory=list)
     fault: FrontdiagError | None = None  # damage or bad input met after some frames
     interrupted: bool = False
+    verdicts: Any = None  # frontdiag.verdicts.Verdicts when rules were evaluated
+    ruleset: Any = None
 
 
 # --------------------------------------------------------------------------------------------
@@ -288,6 +295,14 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
         raise FrontdiagError(f"--max-frames {opts.max_frames}: must be >= 1")
     path = Path(path)
     t_start = time.perf_counter()
+    ruleset = None
+    if opts.rules:  # load (and validate) the rules before spending time on the recording
+        from frontdiag.verdicts import load_ruleset
+
+        ruleset = load_ruleset(
+            Path(opts.rules_dir) if opts.rules_dir else None,
+            Path(opts.rules_overrides) if opts.rules_overrides else None,
+            select=opts.select, ignore=opts.ignore)
     notes: list[str] = []
     rows: list[dict[str, Any]] = []
     fault: FrontdiagError | None = None
@@ -393,8 +408,16 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
         table = _table(rows)
         manifest = _manifest(path, rec, choice, intr, opts, cam_stream, lid_stream, notes,
                              fault, interrupted, time.perf_counter() - t_start)
+    table.attrs["manifest"] = manifest
+    verdicts = None
+    if ruleset is not None:
+        from frontdiag.verdicts import evaluate
+
+        verdicts = evaluate(table, ruleset)
+        table = verdicts.table
+        table.attrs["manifest"] = manifest
     return Analysis(table=table, manifest=manifest, choice=choice, intrinsics=intr, notes=notes,
-                    fault=fault, interrupted=interrupted)
+                    fault=fault, interrupted=interrupted, verdicts=verdicts, ruleset=ruleset)
 
 
 def _check_all_failed(stream: _SensorStream) -> None:
@@ -475,6 +498,9 @@ def _manifest(path: Path, rec: Recording, choice: TopicChoice, intr: Intrinsics 
 
         lid_params = params(opts.lidar_params or LidarParams())
     selection = {k: getattr(opts, k) for k in ("start_s", "end_s", "max_frames", "stride")}
+    rules = None if not opts.rules else {
+        "dir": opts.rules_dir, "overrides": opts.rules_overrides, "select": opts.select,
+        "ignore": opts.ignore}
     return {
         "frontdiag_version": __version__,
         "versions": _versions(),
@@ -489,6 +515,7 @@ def _manifest(path: Path, rec: Recording, choice: TopicChoice, intr: Intrinsics 
             "source": intr.source, "width": intr.width, "height": intr.height},
         "selection": selection,
         "params": {"camera": cam_params, "lidar": lid_params},
+        "rules": rules,
         "counts": {s.topic: asdict(s.stats) for s in (cam, lid) if s is not None},
         "notes": list(notes),
         "fault": None if fault is None else str(fault),
@@ -507,13 +534,13 @@ def analyze(path: Path | str, **kwargs: Any) -> pd.DataFrame:
     """Re-run the frontend on ``path`` and return the per-frame table.
 
     Keyword arguments are the fields of :class:`AnalysisOptions` (``camera_topic``,
-    ``intrinsics="fx,fy,cx,cy"``, ``max_frames``, ``stride``, ``start_s``, ...). The manifest
-    is attached as ``df.attrs["manifest"]``. Damage part-way through the recording is logged
+    ``intrinsics="fx,fy,cx,cy"``, ``max_frames``, ``stride``, ``start_s``, ``rules=False``, ...).
+    With rules (the default) each row carries ``conditions``, ``rules`` and ``verdict``. The
+    manifest is attached as ``df.attrs["manifest"]``. Damage part-way through the recording is logged
     and the frames before it are returned (``df.attrs["fault"]`` holds the message).
     """
     result = run_analysis(path, AnalysisOptions(**kwargs))
     df = result.table
-    df.attrs["manifest"] = result.manifest
     if result.fault is not None:
         log.warning("%s", result.fault)
         df.attrs["fault"] = str(result.fault)

@@ -26,6 +26,13 @@ Examples:
   frontdiag analyze run_db3/ --start 12 --end 20 --intrinsics 615,615,320,240
 
   frontdiag analyze run.mcap --max-frames 300 --stride 2 --json > summary.json
+
+  frontdiag analyze run.mcap --fail-on warn --junit report.xml --max-fraction fail=0.02
+
+  frontdiag analyze run.mcap --out new/ --baseline old/     # fail on regressions vs old run
+
+Exit codes: 0 nothing at or above --fail-on, 1 a gate failed, 2 bad input / usage / config,
+3 internal error, 130 interrupted.
 """
 
 
@@ -59,6 +66,23 @@ def analyze_cmd(
                                           help="Analyse at most N frames per sensor."),
     stride: int = typer.Option(1, "--stride", help="Analyse every N-th message."),
     features: int = typer.Option(1000, "--features", help="ORB features per frame."),
+    rules_dir: Path | None = typer.Option(None, "--rules",
+                                          help="Rules directory instead of the shipped rules/."),
+    overrides: Path | None = typer.Option(None, "--overrides",
+                                          help="TOML file overriding rule thresholds."),
+    select: list[str] | None = typer.Option(None, "--select",
+                                            help="Only these rule IDs (repeat or comma-separate)."),
+    ignore: list[str] | None = typer.Option(None, "--ignore",
+                                            help="Skip these rule IDs (repeat or comma-separate)."),
+    no_rules: bool = typer.Option(False, "--no-rules", help="Metrics only, no verdicts."),
+    fail_on: str = typer.Option("fail", "--fail-on",
+                                help="Exit 1 when a rule of this severity fires: warn, fail, never."),
+    max_fraction: list[str] | None = typer.Option(
+        None, "--max-fraction", help="Run-level gate on the share of frames, e.g. fail=0.02."),
+    baseline: Path | None = typer.Option(None, "--baseline",
+                                         help="Earlier result dir of the same recording: exit 1 "
+                                              "on regressions."),
+    junit: Path | None = typer.Option(None, "--junit", help="Write JUnit XML (one case per rule)."),
     as_json: bool = typer.Option(False, "--json",
                                  help="Print a machine-readable summary on stdout."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or table."),
@@ -70,6 +94,8 @@ def analyze_cmd(
     from frontdiag.errors import EXIT_INTERRUPTED, EXIT_OK, ConfigError
     from frontdiag.output import prepare_out_dir, write_manifest, write_table
 
+    if fail_on not in ("warn", "fail", "never"):
+        raise ConfigError(f"--fail-on {fail_on!r}: choose warn, fail or never")
     if fmt not in ("parquet", "csv"):
         raise ConfigError(f"--format {fmt!r}: choose parquet or csv")
     if features < 50:
@@ -79,24 +105,59 @@ def analyze_cmd(
         camera_topic=camera_topic, lidar_topic=lidar_topic, odom_topic=odom_topic,
         use_camera=not no_camera, use_lidar=not no_lidar, intrinsics=intrinsics,
         camera_info_file=str(camera_info) if camera_info else None, start_s=start, end_s=end,
-        max_frames=max_frames, stride=stride, camera_params=CameraParams(n_features=features))
+        max_frames=max_frames, stride=stride, camera_params=CameraParams(n_features=features),
+        rules=not no_rules, rules_dir=str(rules_dir) if rules_dir else None,
+        rules_overrides=str(overrides) if overrides else None, select=_split(select),
+        ignore=_split(ignore))
+    limits = None
+    if max_fraction:
+        from frontdiag.verdicts import parse_max_fraction
+
+        limits = parse_max_fraction(max_fraction)
     err = Console(stderr=True)
     result = _run_with_progress(log, opts, err, show=not quiet and not as_json)
+    gate_result = None
+    if result.verdicts is not None:
+        from frontdiag.verdicts import gate
+
+        gate_result = gate(result.verdicts, fail_on=fail_on,  # type: ignore[arg-type]
+                           max_fraction=limits, baseline=baseline)
     if out_dir is not None:
         write_table(out_dir, result.table, csv=(fmt == "csv"))
         write_manifest(out_dir, result.manifest)
+        if result.verdicts is not None:
+            from frontdiag.report import write_episodes, write_rules_snapshot
+
+            write_episodes(out_dir, result.verdicts)
+            write_rules_snapshot(out_dir, result.ruleset)
+    if junit is not None and gate_result is not None:
+        from frontdiag.report import write_junit
+
+        write_junit(junit, result.verdicts, gate_result)
     if as_json:
-        typer.echo(json.dumps(_json_summary(result), indent=2, default=str))
+        typer.echo(json.dumps(_json_summary(result, gate_result), indent=2, default=str))
     elif not quiet:
         from frontdiag.cli._render import render_analysis
 
-        render_analysis(Console(), result, out_dir)
+        con = Console()
+        render_analysis(con, result, out_dir)
+        if gate_result is not None:
+            from frontdiag.report import reanalyse_command, render_console_summary
+
+            render_console_summary(con, result.verdicts, gate_result,
+                                   reanalyse_cmd=lambda e: reanalyse_command(str(log), e))
     if result.interrupted:
         err.print("[yellow]interrupted[/]: the frames analysed so far were kept")
         return EXIT_INTERRUPTED
     if result.fault is not None:
         raise result.fault
-    return EXIT_OK
+    return gate_result.exit_code if gate_result is not None else EXIT_OK
+
+
+def _split(values: list[str] | None) -> list[str] | None:
+    if not values:
+        return None
+    return [v.strip() for item in values for v in item.split(",") if v.strip()]
 
 
 def _run_with_progress(log: Path, opts: Any, err: Any, show: bool) -> Any:
@@ -124,10 +185,15 @@ def _run_with_progress(log: Path, opts: Any, err: Any, show: bool) -> Any:
         return run_analysis(log, opts, progress=progress)
 
 
-def _json_summary(result: Any) -> dict[str, Any]:
+def _json_summary(result: Any, gate_result: Any) -> dict[str, Any]:
     from frontdiag.cli._render import sensor_summaries
 
-    return {"input": result.manifest["input"], "topics": result.manifest["topics"],
-            "counts": result.manifest["counts"], "notes": result.notes,
-            "fault": None if result.fault is None else str(result.fault),
-            "sensors": sensor_summaries(result.table)}
+    out = {"input": result.manifest["input"], "topics": result.manifest["topics"],
+           "counts": result.manifest["counts"], "notes": result.notes,
+           "fault": None if result.fault is None else str(result.fault),
+           "sensors": sensor_summaries(result.table)}
+    if gate_result is not None:
+        from frontdiag.report import to_json
+
+        out["verdicts"] = to_json(result.verdicts, gate_result)
+    return out
