@@ -263,13 +263,16 @@ def simulate(scenario: str, out: Path | str, fmt: str = "mcap",
             t_ns = T0_NS + round(t * 1e9)
             part = tl.part_index(t)
             if kind == 0:
-                if part != ae_part:  # settle the auto-exposure on a new area, unrecorded
+                if part != ae_part:  # a new area: the exposure arrives converged on target
                     ae_part = part
                     if ae.enabled:
                         rad = radiance_at(t, part)
-                        for _ in range(20):
-                            if not ae.update(float(np.mean(rad)) * ae.gain * 200.0):
+                        for _ in range(8):  # the mean of a clipped image: iterate to target
+                            level = float(np.clip(rad * (ae.gain * 200.0), 0, 255).mean())
+                            if level <= 0:
                                 break
+                            ae.gain = float(np.clip(ae.gain * ae.target / level, ae.min_gain,
+                                                    ae.max_gain))
                     prev_gain = None
                 rad = radiance_at(t, part)
                 frng = np.random.default_rng([opt.seed, 2, idx])

@@ -85,25 +85,57 @@ def random_text(rng: np.random.Generator, n: int) -> str:
     return "".join(_GLYPHS[int(i)] for i in rng.integers(0, len(_GLYPHS), n))
 
 
+_FONTS = (cv2.FONT_HERSHEY_SIMPLEX, cv2.FONT_HERSHEY_DUPLEX, cv2.FONT_HERSHEY_COMPLEX,
+          cv2.FONT_HERSHEY_TRIPLEX, cv2.FONT_HERSHEY_PLAIN)
+
+
 def label(h: int, w: int, rng: np.random.Generator, *, paper: float = 235.0,
           ink: float = 25.0, barcode: bool = True) -> np.ndarray:
-    """A printed bin label: white paper, a line of glyphs and (optionally) a barcode."""
+    """A printed bin label: paper, one or two lines of glyphs, and (optionally) a barcode.
+
+    Layout, font and glyphs are drawn from ``rng``, so two labels share a look but not their
+    corners — unless the caller reuses one label array, which is how repetition is built.
+    """
     img = np.full((h, w), paper, np.float32) + 3.0 * pink_noise(h, w, rng, finest=4)
     out = _to_u8(img)
-    scale = h / 70.0
-    txt = random_text(rng, max(3, int(w / (22 * scale + 1e-9)) - 1))
-    cv2.putText(out, txt, (int(0.06 * w), int(0.45 * h)), cv2.FONT_HERSHEY_SIMPLEX,
-                0.9 * scale, int(ink), max(1, round(2 * scale)), cv2.LINE_AA)
+    lines = 1 if h < 30 or rng.random() < 0.5 else 2
+    bar_top = 0.6 if barcode else 1.0
+    for k in range(lines):
+        font = _FONTS[int(rng.integers(0, len(_FONTS)))]
+        scale = h / 70.0 * rng.uniform(0.6, 1.1) / (1.3 if lines == 2 else 1.0)
+        n = max(2, int(w / (22 * scale + 1e-9)) - int(rng.integers(1, 4)))
+        y = int((0.4 + 0.3 * k) * h * bar_top / 0.6) if lines == 2 else int(0.45 * h)
+        cv2.putText(out, random_text(rng, n), (int(rng.uniform(0.03, 0.15) * w), y), font,
+                    0.9 * scale, int(ink), max(1, round(2 * scale)), cv2.LINE_AA)
     if barcode:
-        x = int(0.06 * w)
-        y0, y1 = int(0.6 * h), int(0.9 * h)
-        while x < 0.94 * w:
-            bw = int(rng.integers(1, 4)) * max(1, round(scale))
+        x = int(rng.uniform(0.04, 0.3) * w)
+        x_end = int(rng.uniform(0.7, 0.96) * w)
+        y0, y1 = int(0.62 * h), int(0.92 * h)
+        unit = max(1, round(h / 70.0))
+        while x < x_end:
+            bw = int(rng.integers(1, 4)) * unit
             if rng.random() < 0.55:
                 out[y0:y1, x:x + bw] = int(ink)
             x += bw
-    cv2.rectangle(out, (0, 0), (w - 1, h - 1), int(paper - 60), max(1, int(scale)))
+    cv2.rectangle(out, (0, 0), (w - 1, h - 1), int(paper - 60), max(1, int(h / 70.0)))
     return out
+
+
+def logo(img: np.ndarray, rng: np.random.Generator, x: int, y: int, size: int,
+         value: int) -> None:
+    """A printed mark: a random filled polygon, circle or arrow, in place."""
+    kind = rng.random()
+    if kind < 0.45:
+        n = int(rng.integers(3, 8))
+        ang = np.sort(rng.uniform(0, 2 * np.pi, n))
+        rad = size * rng.uniform(0.4, 1.0, n)
+        pts = np.stack([x + rad * np.cos(ang), y + rad * np.sin(ang)], 1).astype(np.int32)
+        cv2.fillPoly(img, [pts], value, cv2.LINE_AA)
+    elif kind < 0.7:
+        cv2.circle(img, (x, y), max(2, size // 2), value, max(1, size // 6), cv2.LINE_AA)
+    else:
+        cv2.arrowedLine(img, (x - size, y), (x + size, y + int(rng.integers(-size, size + 1))),
+                        value, max(1, size // 5), cv2.LINE_AA, tipLength=0.4)
 
 
 def cardboard(h: int, w: int, rng: np.random.Generator) -> np.ndarray:
