@@ -29,6 +29,8 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
     _M("sensor", "", "any", "camera or lidar"),
     _M("topic", "", "any", "topic the row was computed from"),
     _M("status", "", "any", "ok, or why the frame could not be evaluated"),
+    _M("width", "px", "camera", "image width after decoding"),
+    _M("height", "px", "camera", "image height after decoding"),
     # --- camera: detection
     _M("n_keypoints", "count", "camera", "ORB keypoints detected", "higher"),
     _M("entropy_norm", "ratio", "camera",
