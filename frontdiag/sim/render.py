@@ -93,15 +93,23 @@ def render(world: World, intr: Intrinsics, T_wc: np.ndarray, *, lights: float = 
     # near to far, so the z-test rejects most occluded pixels before any warping
     cand = np.nonzero(~out)[0]
     cand = cand[np.argsort(np.linalg.norm(arr["centre"][cand] - C, axis=1))]
-    for ti in cand:
+    # project the tiles entirely in front of the near plane all at once
+    front = (pcs[cand, :, 2] >= NEAR).all(axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        uv_all = np.stack([intr.fx * pcs[cand, :, 0] / pcs[cand, :, 2] + intr.cx,
+                           intr.fy * pcs[cand, :, 1] / pcs[cand, :, 2] + intr.cy], axis=-1)
+    for k, ti in enumerate(cand):
         tile = tiles[ti]
         surf = tile.surface
         o = tile.origin
-        pc = pcs[ti]
-        poly = _clip_near(pc, NEAR)
-        if len(poly) < 3:
-            continue
-        uv = intr.project(poly)
+        if front[k]:
+            poly = pcs[ti]
+            uv = uv_all[k]
+        else:
+            poly = _clip_near(pcs[ti], NEAR)
+            if len(poly) < 3:
+                continue
+            uv = intr.project(poly)
         x0 = max(0, int(np.floor(uv[:, 0].min())))
         x1 = min(W, int(np.ceil(uv[:, 0].max())) + 1)
         y0 = max(0, int(np.floor(uv[:, 1].min())))

@@ -186,14 +186,19 @@ def dock_door(b: Builder) -> None:
              kind="daylight")
 
 
-def dock_corridor(b: Builder) -> None:
-    """The loading-dock corridor: long parallel walls (visually textured), no end in range."""
-    b.floor(-220, 220, -2.5, 2.5)
-    h, w = b._size(440, 5, 3)
-    b.w.quad([-220, -2.5, 4.5], [1, 0, 0], [0, 1, 0], 440, 5,
-             T.blank(h, w, b.rng, level=110, contrast=1.0), kind="blank")
-    b.wall_x(-220, 220, 2.5, height=4.5, facing=-1)
-    b.wall_x(-220, 220, -2.5, height=4.5, facing=1)
+def dock_corridor(half: float) -> Callable[[Builder], None]:
+    """The loading-dock corridor: long parallel walls (visually textured), no end in range.
+
+    ``half`` is half its length: the run stays more than the LiDAR's range from both ends.
+    """
+    def build(b: Builder) -> None:
+        b.floor(-half, half, -2.5, 2.5)
+        h, w = b._size(2 * half, 5, 3)
+        b.w.quad([-half, -2.5, 4.5], [1, 0, 0], [0, 1, 0], 2 * half, 5,
+                 T.blank(h, w, b.rng, level=110, contrast=1.0), kind="blank")
+        b.wall_x(-half, half, 2.5, height=4.5, facing=-1)
+        b.wall_x(-half, half, -2.5, height=4.5, facing=1)
+    return build
 
 
 def face_room(face: str) -> Callable[[Builder], None]:
@@ -280,7 +285,9 @@ def _label_bank(seconds: float) -> list[Part]:
 
 def _repetitive(seconds: float) -> list[Part]:
     v = min(1.0, 40.0 / max(seconds, 1e-3))
-    return [Part(plain_aisle("repetitive", "repetitive"),
+    # long enough that the far end stays ~25 m ahead; no longer, every bay costs render time
+    length = 1.2 * np.ceil((2.0 + v * seconds + 25.0) / 1.2)
+    return [Part(plain_aisle("repetitive", "repetitive", length=float(length)),
                  [Segment(seconds, line(2.0, 0.0, 0.0, v), camera="repetitive_structure")],
                  name="repetitive aisle")]
 
@@ -312,7 +319,8 @@ def _dock_door(seconds: float) -> list[Part]:
 
 def _dock_corridor(seconds: float) -> list[Part]:
     v = 1.5
-    return [Part(dock_corridor, [Segment(seconds, line(-v * seconds / 2, 0.3, 0.0, v),
+    half = v * seconds / 2 + 70.0
+    return [Part(dock_corridor(half), [Segment(seconds, line(-v * seconds / 2, 0.3, 0.0, v),
                                          lidar="registration_degeneracy")],
                  name="dock corridor")]
 
@@ -366,7 +374,7 @@ SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
              "healthy: textured, 3D, translating; LiDAR well constrained", 12.0, _healthy_loop),
     Scenario("label_bank", "blank aisle with one bank of printed labels at eye height (left)",
              "feature_clustering: every feature in one narrow band of the image", 8.0, _label_bank),
-    Scenario("repetitive_aisle", "aisle of identical uprights, cartons and bin labels",
+    Scenario("repetitive_aisle", "aisle of identical uprights, crates and bin labels",
              "repetitive_structure: normal feature count, ambiguous descriptors", 8.0, _repetitive),
     Scenario("planar_approach", "driving straight at a flat wall of cartons that fills the view",
              "planar_degeneracy: every match on one plane (H explains them as well as E)",

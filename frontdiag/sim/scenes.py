@@ -120,8 +120,12 @@ class Builder:
                                           holes=55.0 if content == "repetitive" else 12.0))
         beam_h = 0.1
         beam_tex_rep = T.label(*self._size(0.12, 0.06, 400), self.rng)
-        tote = T.bin_front(*self._size(0.2, 0.18, 300), self.rng)
-        rep_cartons = [tote, tote]
+        # one crate and its gaps (0.22 m x 0.2 m), the tile every bay repeats
+        ch, cw = self._size(0.22, 0.2, 300)
+        tote = np.full((ch, cw), 60, np.uint8)
+        gh, gw = max(1, ch // 10), max(1, cw // 11)
+        tote[: ch - gh, : cw - gw] = T.bin_front(ch - gh, cw - gw, self.rng)
+        rep_cartons = [tote]
         xs = np.arange(x0, x1 + 1e-6, UPRIGHT_PITCH)
         for xk in xs:
             lo = [xk - 0.04, min(y_front, y_front + s * 0.08), 0.0]
@@ -163,18 +167,23 @@ class Builder:
             lab = T.label(*self._size(0.12, 0.06, 400), rng)
             self._beam_label(xa + 0.1, y_front, s, zl, lab)
         elif content == "repetitive":
-            # identical bins side by side and stacked two high: the nearest copy of any corner
-            # sits at the same depth, a bin width away, and looks exactly the same
-            x = xa + 0.02
-            d0 = y_front + s * 0.02
-            d1 = y_front + s * 0.45
-            while x + 0.2 <= xb:
-                for k, zb in enumerate(np.arange(zl, zl + 0.75, 0.2)):
-                    tex = rep_cartons[k % 2]
-                    self.w.box([x, min(d0, d1), zb], [x + 0.2, max(d0, d1), zb + 0.18],
-                               lambda hh, ww, t=tex: t, ppm=self.ppm(300),
-                               faces="y" if s > 0 else "Y", kind="repetitive")
-                x += 0.22
+            # identical crates side by side and stacked four high: one quad per bay and level
+            # whose texture is the same crate tile repeated, so the nearest copy of any corner
+            # sits at the same depth a crate away and looks exactly the same
+            n = int((xb - xa - 0.02) // 0.22)
+            if n < 1:
+                return
+            tile = rep_cartons[0]
+            reps = np.tile(tile, (4, n))
+            y = y_front - s * 0.02 + s * 0.04
+            width, height = n * 0.22, 4 * 0.2
+            x0 = xa + 0.02
+            if s > 0:
+                self.w.quad([x0, y, zl + height], [1, 0, 0], DOWN, width, height, reps,
+                            kind="repetitive")
+            else:
+                self.w.quad([x0 + width, y, zl + height], [-1, 0, 0], DOWN, width, height, reps,
+                            kind="repetitive")
             self._beam_label(xa + 0.1, y_front, s, zl, beam_label)
         elif content == "labels":
             if not bank or not any(b0 <= xa < b1 for b0, b1 in bank) or zl != LEVELS[1]:
