@@ -20,7 +20,7 @@ def _is_recording(p: Path) -> bool:
 def _fmt(v: float | None, pct: bool = False) -> str:
     if v is None:
         return "—"
-    return f"{100 * v:.1f} %" if pct else f"{v:.3f}"
+    return f"{100 * v:.1f} %" if pct else f"{v:.2f}"
 
 
 def register(app: typer.Typer) -> None:
@@ -67,19 +67,21 @@ def register(app: typer.Typer) -> None:
 
             typer.echo(json.dumps(report.as_dict(), indent=2))
             return 0
+        from rich import box
         from rich.console import Console
         from rich.table import Table
 
         console = Console()
-        t = Table(title=f"frontdiag eval — {target}")
+        t = Table(title=f"frontdiag eval — {target}", box=box.SIMPLE_HEAD, pad_edge=False,
+                  caption="found: episodes with ≥ 50 % of frames flagged · frames: labelled "
+                          "frames · FA: false alarms / healthy frames · each condition on the "
+                          "rows of its sensor (registration_degeneracy: LiDAR, others: camera)")
         t.add_column("condition", no_wrap=True)
-        for col in ("sensor", "episodes", "ep. recall", "frames", "flagged", "precision", "F1",
-                    "false alarms"):
-            t.add_column(col, justify="left" if col == "sensor" else "right")
+        for col in ("found", "frames", "flagged", "precision", "F1", "FA"):
+            t.add_column(col, justify="right", no_wrap=True)
         for c in report.conditions:
-            t.add_row(c.condition, ",".join(c.sensors), str(c.episodes),
-                      _fmt(c.episode_recall), str(c.frames_labelled), str(c.frames_flagged),
-                      _fmt(c.precision), _fmt(c.f1),
+            t.add_row(c.condition, f"{c.episodes_found}/{c.episodes}", str(c.frames_labelled),
+                      str(c.frames_flagged), _fmt(c.precision), _fmt(c.f1),
                       f"{c.false_alarms}/{c.healthy_frames}")
         console.print(t)
         console.print(f"{report.frames} frames, {report.labelled_frames} labelled, "
