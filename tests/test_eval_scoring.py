@@ -141,3 +141,18 @@ def test_cli_eval_json_and_table(tmp_path: Path, capsys) -> None:
     assert main(["eval", str(res), "--labels", str(lab)]) == 0
     assert "pure_rotation" in capsys.readouterr().out
     assert main(["eval", str(tmp_path / "missing"), "--labels", str(lab)]) == 2
+
+
+def test_eval_of_a_recording_runs_the_analysis(tmp_path: Path, capsys) -> None:
+    api = pytest.importorskip("frontdiag.api")
+    if not hasattr(api, "analyze"):
+        pytest.skip("frontdiag.api.analyze not available")
+    from frontdiag.sim.run import SimOptions, simulate
+
+    rec = tmp_path / "wall.mcap"
+    simulate("blank_wall", rec, "mcap", SimOptions(seconds=0.5, width=160, height=120,
+                                                   rate_hz=10.0, lidar=None))
+    assert main(["eval", str(rec), "--json"]) == 0  # labels default to wall.mcap.labels.csv
+    out = json.loads(capsys.readouterr().out)
+    assert out["frames"] == 5
+    assert [c["condition"] for c in out["conditions"]][:1] == ["detection_failure"]
