@@ -39,8 +39,9 @@ class Builder:
         self.w = world
         self.rng = rng
         self.detail = float(np.clip(detail, 0.2, 2.0))
-        # grey level of blank paint; plain scenes keep every blank part within a few levels
-        # of it so no corner between two blank parts reaches FAST's threshold of 20
+        # grey level of blank paint; every blank part stays within 4 levels of it, so no
+        # corner between two blank parts reaches even the low FAST threshold (7) that a
+        # frontend uses to refill empty cells
         self.plain = 150.0
 
     def ppm(self, base: float) -> float:
@@ -55,14 +56,14 @@ class Builder:
               z: float = 0.0) -> None:
         h, w = self._size(x1 - x0, y1 - y0, 60)
         tex = (T.concrete(h, w, self.rng, level=115, contrast=22) if textured
-               else T.blank(h, w, self.rng, level=self.plain - 8, contrast=1.0))
+               else T.blank(h, w, self.rng, level=self.plain - 3, contrast=1.0))
         self.w.quad([x0, y0, z], [1, 0, 0], [0, 1, 0], x1 - x0, y1 - y0, tex,
                     kind="floor" if textured else "blank")
 
     def ceiling(self, x0: float, x1: float, y0: float, y1: float, z: float = 6.0) -> None:
         h, w = self._size(x1 - x0, y1 - y0, 6)
         self.w.quad([x0, y0, z], [1, 0, 0], [0, 1, 0], x1 - x0, y1 - y0,
-                    T.blank(h, w, self.rng, level=self.plain - 12, contrast=1.0), kind="blank")
+                    T.blank(h, w, self.rng, level=self.plain - 4, contrast=1.0), kind="blank")
 
     def wall_x(self, x0: float, x1: float, y: float, height: float = 6.0, *,
                style: str = "poster", facing: int = -1) -> None:
@@ -89,7 +90,7 @@ class Builder:
             return T.poster(h, w, self.rng)
         if style == "concrete":
             return T.concrete(h, w, self.rng, level=140, contrast=10)
-        return T.blank(h, w, self.rng, level=self.plain + 6, contrast=1.0)
+        return T.blank(h, w, self.rng, level=self.plain + 2, contrast=1.0)
 
     # -- shelving ------------------------------------------------------------------------
     def shelving(self, x0: float, x1: float, y_front: float, side: int, content: str, *,
@@ -113,7 +114,7 @@ class Builder:
             self.w.quad([x1, yb, SHELF_HEIGHT], [-1, 0, 0], DOWN, x1 - x0, SHELF_HEIGHT, back,
                         kind="blank")
         ppm_u = self.ppm(200)
-        up_tex = (T.blank(max(4, int(SHELF_HEIGHT * 20)), 4, self.rng, level=self.plain - 6,
+        up_tex = (T.blank(max(4, int(SHELF_HEIGHT * 20)), 4, self.rng, level=self.plain - 2,
                           contrast=1.0)
                   if plain else T.upright(max(8, int(SHELF_HEIGHT * ppm_u)),
                                           max(4, int(0.08 * ppm_u)),
@@ -135,7 +136,7 @@ class Builder:
         for zl in LEVELS:
             # beam across the whole run, just below the level
             bh, bw = self._size(x1 - x0, beam_h, 40)
-            beam = T.blank(bh, bw, self.rng, level=self.plain - 4 if plain else 95,
+            beam = T.blank(bh, bw, self.rng, level=self.plain - 1 if plain else 95,
                            contrast=1.0)
             zt = zl
             if s > 0:
@@ -188,15 +189,17 @@ class Builder:
         elif content == "labels":
             if not bank or not any(b0 <= xa < b1 for b0, b1 in bank) or zl != LEVELS[1]:
                 return
-            # rows of small bins with printed fronts, at staggered depths (not one plane),
+            # rows of small bins with printed fronts, at staggered depths,
             # from 0.72 m to 1.6 m: eye height for the camera at 1.1 m
             k = 0
             for zr in np.arange(0.72, 1.6, 0.13):
                 x = xa + 0.02
                 while x < xb - 0.15:
-                    dp = (0.02, 0.22, 0.1, 0.32, 0.16)[k % 5]
+                    # bins from the shelf edge to most of the way back: 0.7 m of relief,
+                    # so the bank is a cluster, not a plane
+                    dp = (0.0, 0.55, 0.2, 0.7, 0.35)[k % 5]
                     d0 = y_front + s * dp
-                    d1 = y_front + s * (dp + 0.3)
+                    d1 = y_front + s * (dp + 0.15)
                     self.w.box([x, min(d0, d1), zr], [x + 0.17, max(d0, d1), zr + 0.11],
                                lambda hh, ww: T.label(hh, ww, rng), ppm=self.ppm(500),
                                faces=("y" if s > 0 else "Y"), kind="label")
