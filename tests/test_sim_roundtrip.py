@@ -130,3 +130,14 @@ def test_cli_list_and_errors(tmp_path: Path, capsys) -> None:
     assert main(["simulate", "blank_wall", "-o", str(tmp_path / "w.bag"), "--format", "bag",
                  "--seconds", "0.3", "--size", "96x72", "--lidar", "4x64", "-q"]) == 0
     assert (tmp_path / "w.bag.labels.csv").is_file()
+
+
+def test_existing_output_needs_force(tmp_path: Path) -> None:
+    out = tmp_path / "w.mcap"
+    out.write_bytes(b"keep me")
+    args = ["simulate", "blank_wall", "-o", str(out), "--seconds", "0.2", "--size", "64x48",
+            "--no-lidar", "-q"]
+    assert main(args) == 2
+    assert out.read_bytes() == b"keep me"
+    assert main([*args, "--force"]) == 0
+    assert out.read_bytes()[:8] != b"keep me"

@@ -47,6 +47,7 @@ def register(app: typer.Typer) -> None:
                                               help="Fix the gain (no exposure steps)."),
         list_: bool = typer.Option(False, "--list", help="List the scenarios and exit."),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
+        force: bool = typer.Option(False, "--force", help="Replace an existing output."),
     ) -> int:
         """Simulate a warehouse AMR scenario and write a labelled recording.
 
@@ -90,7 +91,7 @@ def register(app: typer.Typer) -> None:
                           jpeg_quality=jpeg_quality, blur_ms=blur_ms,
                           auto_exposure=not no_auto_exposure)
         if quiet:
-            res = simulate(scenario, output, fmt, opts)
+            res = simulate(scenario, output, fmt, opts, overwrite=force)
         else:
             from rich.progress import BarColumn, Progress, TimeRemainingColumn
 
@@ -102,7 +103,7 @@ def register(app: typer.Typer) -> None:
                 def step(done: int, total: int) -> None:
                     bar.update(task, completed=done, total=total)
 
-                res = simulate(scenario, output, fmt, opts, progress=step)
+                res = simulate(scenario, output, fmt, opts, progress=step, overwrite=force)
         console.print(f"wrote {res.path} ({res.frames} frames, {res.scans} scans, "
                       f"{res.seconds:.1f} s) and {res.labels_path}", highlight=False)
         counts: dict[str, int] = {}

@@ -183,8 +183,12 @@ def camera_T(pose: tuple[float, float, float, float]) -> np.ndarray:
 
 def simulate(scenario: str, out: Path | str, fmt: str = "mcap",
              options: SimOptions | None = None,
-             progress: Callable[[int, int], None] | None = None) -> SimResult:
-    """Write ``out`` (and ``out.labels.csv``) for ``scenario``; returns what was written."""
+             progress: Callable[[int, int], None] | None = None,
+             overwrite: bool = False) -> SimResult:
+    """Write ``out`` (and ``out.labels.csv``) for ``scenario``; returns what was written.
+
+    An existing ``out`` is an error unless ``overwrite`` (then it is replaced).
+    """
     opt = options or SimOptions()
     if scenario not in SCENARIOS:
         raise ConfigError(f"unknown scenario {scenario!r}",
@@ -194,8 +198,15 @@ def simulate(scenario: str, out: Path | str, fmt: str = "mcap",
     if opt.width < 32 or opt.height < 24 or opt.rate_hz <= 0:
         raise ConfigError(f"bad image size or rate: {opt.width}x{opt.height} at {opt.rate_hz} Hz")
     out = Path(out)
-    if out.exists() and fmt in ("db3", "ros2-mcap"):
-        raise ConfigError(f"{out} exists", hint="ROS 2 bags are folders; pick a new path")
+    if out.exists():
+        if not overwrite:
+            raise ConfigError(f"{out} exists", hint="pick a new path, or --force to replace it")
+        if out.is_dir():
+            import shutil
+
+            shutil.rmtree(out)
+        else:
+            out.unlink()
     sc = SCENARIOS[scenario]
     seconds = float(opt.seconds if opt.seconds is not None else sc.default_seconds)
     if seconds <= 0:

@@ -194,6 +194,3 @@ class World:
                                     for s in S]),
             }
         return self._sarrays
-
-    def surface_index(self) -> dict[int, Surface]:
-        return {id(s): s for s in self.surfaces}
