@@ -12,6 +12,7 @@ from frontdiag.cli import main
 from frontdiag.conditions import LABELS
 from frontdiag.sim.lidar import LidarSpec
 from frontdiag.sim.run import SimOptions, labels_path_for, simulate
+from frontdiag.sim.scenarios import SCENARIOS
 
 TINY = dict(width=160, height=120, rate_hz=10.0, lidar=LidarSpec(beams=8, columns=128))
 TOPICS = {"/camera/image_raw", "/camera/camera_info", "/lidar/points", "/odom",
@@ -141,3 +142,32 @@ def test_existing_output_needs_force(tmp_path: Path) -> None:
     assert out.read_bytes() == b"keep me"
     assert main([*args, "--force"]) == 0
     assert out.read_bytes()[:8] != b"keep me"
+
+
+def test_sample_logs_are_complete_small_and_labelled() -> None:
+    import importlib.util
+    import sys
+
+    from frontdiag.scoring import read_labels
+
+    root = Path(__file__).resolve().parent.parent / "sample_logs"
+    spec = importlib.util.spec_from_file_location("sample_logs_generate", root / "generate.py")
+    assert spec and spec.loader
+    gen = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = gen  # dataclasses look their module up while being built
+    try:
+        spec.loader.exec_module(gen)
+    finally:
+        del sys.modules[spec.name]
+    assert (root / "healthy_loop.mcap").is_file()
+    assert {log.scenario for log in gen.LOGS} == set(SCENARIOS)
+    assert {log.fmt for log in gen.LOGS} == {"mcap", "bag", "db3"}
+    total = 0
+    for log in gen.LOGS:
+        path = root / log.file
+        assert path.exists(), log.file
+        labels = read_labels(labels_path_for(path))
+        assert len(labels) > 0
+        total += sum(f.stat().st_size for f in path.rglob("*")) if path.is_dir() \
+            else path.stat().st_size
+    assert total <= 25_000_000
