@@ -189,22 +189,24 @@ class Builder:
         elif content == "labels":
             if not bank or not any(b0 <= xa < b1 for b0, b1 in bank) or zl != LEVELS[1]:
                 return
-            # rows of small bins with printed fronts, at staggered depths,
-            # from 0.72 m to 1.6 m: eye height for the camera at 1.1 m
-            k = 0
-            for zr in np.arange(0.72, 1.6, 0.13):
-                x = xa + 0.02
-                while x < xb - 0.15:
-                    # bins from the shelf edge to most of the way back: 0.7 m of relief,
-                    # so the bank is a cluster, not a plane
-                    dp = (0.0, 0.55, 0.2, 0.7, 0.35)[k % 5]
+            # rows of small bins with printed fronts, at staggered depths, from 0.72 m to
+            # 1.6 m (eye height for the camera at 1.1 m); sizes, gaps and paper shades vary
+            # so the bank is a cluster of distinct labels, not a grid of identical corners
+            zr = 0.72
+            while zr < 1.6:
+                bh = float(rng.uniform(0.08, 0.13))
+                x = xa + float(rng.uniform(0.0, 0.05))
+                while x < xb - 0.12:
+                    bw = float(rng.uniform(0.12, 0.24))
+                    dp = float(rng.uniform(0.0, 0.7))
                     d0 = y_front + s * dp
                     d1 = y_front + s * (dp + 0.15)
-                    self.w.box([x, min(d0, d1), zr], [x + 0.17, max(d0, d1), zr + 0.11],
-                               lambda hh, ww: T.label(hh, ww, rng), ppm=self.ppm(500),
-                               faces=("y" if s > 0 else "Y"), kind="label")
-                    x += 0.19
-                    k += 1
+                    paper = float(rng.uniform(190.0, 245.0))
+                    self.w.box([x, min(d0, d1), zr], [x + bw, max(d0, d1), zr + bh],
+                               lambda hh, ww, p=paper: T.label(hh, ww, rng, paper=p),
+                               ppm=self.ppm(500), faces=("y" if s > 0 else "Y"), kind="label")
+                    x += bw + float(rng.uniform(0.01, 0.06))
+                zr += bh + float(rng.uniform(0.015, 0.04))
 
     def _beam_label(self, x: float, y_front: float, s: float, zl: float, tex: np.ndarray) -> None:
         y = y_front - s * 0.002
