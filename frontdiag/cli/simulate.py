@@ -105,10 +105,14 @@ def register(app: typer.Typer) -> None:
 
                 res = simulate(scenario, output, fmt, opts, progress=step, overwrite=force)
         console.print(f"wrote {res.path} ({res.frames} frames, {res.scans} scans, "
-                      f"{res.seconds:.1f} s) and {res.labels_path}", highlight=False)
+                      f"{res.seconds:.1f} s) and {res.labels_path}", highlight=False,
+                      soft_wrap=True)
         counts: dict[str, int] = {}
         for _, _, c in res.labels:
             counts[c] = counts.get(c, 0) + 1
         console.print("label intervals: " + ", ".join(f"{k} {v}" for k, v in sorted(
-            counts.items())), highlight=False)
+            counts.items())), highlight=False, soft_wrap=True)
+        if res.exposure_steps:
+            console.print(f"auto-exposure stepped {len(res.exposure_steps)} time(s)",
+                          highlight=False)
         return 0
