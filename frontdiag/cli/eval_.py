@@ -49,7 +49,7 @@ def register(app: typer.Typer) -> None:
             if labels is None:
                 labels = labels_path_for(target)
             try:
-                from frontdiag.api import analyze  # type: ignore[attr-defined]
+                from frontdiag.api import analyze
             except ImportError as exc:
                 raise ConfigError("scoring a recording needs `frontdiag analyze`, which this "
                                   "installation does not provide",

@@ -28,7 +28,8 @@ def pointcloud2_msg(points: dict[str, np.ndarray], t_ns: int, frame_id: str = "l
     arr = np.zeros(n, CLOUD_DTYPE)
     for name in CLOUD_DTYPE.names or ():
         arr[name] = points[name]
-    fields = [{"name": nm, "offset": CLOUD_DTYPE.fields[nm][1],
+    offsets = {nm: spec[1] for nm, spec in (CLOUD_DTYPE.fields or {}).items()}
+    fields = [{"name": nm, "offset": offsets[nm],
                "datatype": UINT16 if nm == "ring" else FLOAT32, "count": 1}
               for nm in CLOUD_DTYPE.names or ()]
     return {"header": header(t_ns, frame_id), "height": 1, "width": n, "fields": fields,

@@ -37,7 +37,7 @@ from frontdiag.io.writer import (
 from frontdiag.sim import messages as M
 from frontdiag.sim.lidar import LidarSpec, sweep
 from frontdiag.sim.render import AutoExposure, Intrinsics, expose, render
-from frontdiag.sim.scenarios import MARGIN_S, SCENARIOS, Part
+from frontdiag.sim.scenarios import MARGIN_S, SCENARIOS, Part, Segment
 from frontdiag.sim.scenes import Builder
 from frontdiag.sim.world import World
 
@@ -105,7 +105,7 @@ class Timeline:
         self.parts = parts
         self.seg_start: list[float] = []
         self.seg_part: list[int] = []
-        self.segs = []
+        self.segs: list[Segment] = []
         self.part_start: list[float] = []
         t = 0.0
         for i, p in enumerate(parts):

@@ -167,7 +167,7 @@ class World:
     def tile_arrays(self) -> dict[str, np.ndarray]:
         """Stacked tile geometry for vectorised culling: corners (N,4,3), facing (N,3)."""
         tiles = self.tiles
-        if getattr(self, "_arrays", None) is None:
+        if self._arrays is None:
             corners = np.stack([np.stack([t.origin, t.origin + t.surface.eu * t.width,
                                           t.origin + t.surface.eu * t.width
                                           + t.surface.ev * t.height,
@@ -180,10 +180,10 @@ class World:
 
     def surface_arrays(self) -> dict[str, np.ndarray]:
         """Stacked surface geometry for the LiDAR."""
-        if getattr(self, "_sarrays", None) is None or len(self._sarrays["origin"]) != len(
-                self.surfaces):
+        arrays = self._sarrays
+        if arrays is None or len(arrays["origin"]) != len(self.surfaces):
             S = self.surfaces
-            self._sarrays = {
+            arrays = self._sarrays = {
                 "origin": np.stack([s.origin for s in S]),
                 "eu": np.stack([s.eu for s in S]), "ev": np.stack([s.ev for s in S]),
                 "normal": np.stack([s.normal for s in S]),
@@ -193,4 +193,4 @@ class World:
                 "facing": np.stack([s.facing if s.facing is not None else np.zeros(3)
                                     for s in S]),
             }
-        return self._sarrays
+        return arrays
