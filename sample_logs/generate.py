@@ -125,6 +125,13 @@ def _readme(rows: list, total: int) -> None:
         "python sample_logs/generate.py",
         "```",
         "",
+        "Analyse every sample log, score the verdicts against the labels and print the key "
+        "metrics per constructed label (works on any recordings with labels beside them):",
+        "",
+        "```",
+        "python sample_logs/score.py [RECORDING ...]",
+        "```",
+        "",
         "Scenario details, the labelling rules and how to make longer or larger recordings: "
         "`docs/simulate.md`.",
         "",

@@ -1,0 +1,100 @@
+"""Analyse recordings, score the verdicts against their labels, and show what was measured.
+
+    python sample_logs/score.py                       # every sample log
+    python sample_logs/score.py run1.mcap run2.bag    # any recordings with .labels.csv beside
+
+Prints, per condition over all recordings: episodes found, frame precision/recall/F1 and false
+alarms on healthy frames (the `frontdiag eval` numbers, summed); then the median [p10, p90] of
+the key metrics per constructed label, so a scene can be checked against the lesson's numbers
+independently of any rule.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent))
+
+from frontdiag.api import analyze  # noqa: E402
+from frontdiag.conditions import CONDITION_SENSORS, HEALTHY  # noqa: E402
+from frontdiag.scoring import normalise_frames, read_labels, score  # noqa: E402
+from frontdiag.sim.run import labels_path_for  # noqa: E402
+
+COUNTS = ("episodes", "episodes_found", "frames_labelled", "true_positives", "false_positives",
+          "healthy_frames", "false_alarms")
+CAMERA_METRICS = ("n_keypoints", "entropy_norm", "ratio_reject_rate", "h_over_e",
+                  "parallax_med_deg", "d_mean_intensity", "photo_residual_med")
+LIDAR_METRICS = ("lidar_eig_min", "lidar_cond")
+
+
+def _truth(t: int, sensor: str, labels: pd.DataFrame) -> str:
+    inside = [c for a, b, c in labels.itertuples(index=False)
+              if a <= t <= b and sensor in CONDITION_SENSORS[c]]
+    if len(inside) > 1 and HEALTHY in inside:
+        inside.remove(HEALTHY)
+    return ";".join(inside) or "-"
+
+
+def _q(s: pd.Series) -> str:
+    s = s.dropna()
+    if s.empty:
+        return "—"
+    return f"{s.median():.2f} [{s.quantile(0.1):.2f}, {s.quantile(0.9):.2f}]"
+
+
+def main(argv: list[str]) -> int:
+    recs = [Path(a) for a in argv] or sorted(
+        p for p in HERE.iterdir()
+        if p.suffix in (".mcap", ".bag") or (p.is_dir() and (p / "metadata.yaml").exists()))
+    agg: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
+    healthy = alarms = 0
+    rows = []
+    for rec in recs:
+        labels = read_labels(labels_path_for(rec))
+        frames = normalise_frames(analyze(rec), source=str(rec))
+        rep = score(frames, labels)
+        healthy += rep.healthy_frames
+        alarms += rep.false_alarms
+        for c in rep.conditions:
+            for k in COUNTS:
+                agg[c.condition][k] += getattr(c, k)
+        frames["label"] = [_truth(t, s, labels) for t, s in zip(frames["t_ns"], frames["sensor"],
+                                                                strict=True)]
+        rows.append(frames)
+        print(f"{rec.name}: {len(frames)} rows, {rep.false_alarms}/{rep.healthy_frames} "
+              "false alarms", file=sys.stderr)
+    print(f"{'condition':24s} {'found':>7s} {'prec':>5s} {'recall':>6s} {'F1':>5s} {'FA':>9s}")
+    for cond, d in agg.items():
+        n = d["true_positives"] + d["false_positives"]
+        p = d["true_positives"] / n if n else np.nan
+        r = d["true_positives"] / d["frames_labelled"] if d["frames_labelled"] else np.nan
+        f1 = 2 * p * r / (p + r) if n and d["frames_labelled"] and p + r > 0 else np.nan
+        print(f"{cond:24s} {d['episodes_found']:>3d}/{d['episodes']:<3d} {p:5.2f} {r:6.2f} "
+              f"{f1:5.2f} {d['false_alarms']:>4d}/{d['healthy_frames']:<4d}")
+    print(f"false alarms on healthy frames: {alarms}/{healthy}"
+          f" = {alarms / healthy if healthy else float('nan'):.3f}\n")
+    table = pd.concat(rows, ignore_index=True)
+    for sensor, metrics in (("camera", CAMERA_METRICS), ("lidar", LIDAR_METRICS)):
+        part = table[table["sensor"] == sensor]
+        if part.empty:
+            continue
+        print(f"{sensor}: median [p10, p90] per constructed label ('-' = unlabelled)")
+        for label, g in part.groupby("label"):
+            vals = []
+            for m in metrics:
+                if m not in g:
+                    continue
+                col = g[m].abs() if m == "d_mean_intensity" else g[m]
+                vals.append(f"{m} {_q(col)}")
+            print(f"  {label} (n={len(g)}): " + "; ".join(vals))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
