@@ -270,7 +270,12 @@ def _he_parallax(df: pd.DataFrame, p: Params) -> np.ndarray:
     read = _keyframe_read(df, p)
     with np.errstate(invalid="ignore"):
         q = _quadrant(read["kf_h_over_e"].to_numpy(), read["kf_parallax_med_deg"].to_numpy(), p)
-    return q == (3 if p["want"] == "pure_rotation" else 2)
+        hit = q == (3 if p["want"] == "pure_rotation" else 2)
+        if "min_entropy" in p:
+            # features crowded into a small cone are locally planar: a homography fits them
+            # whatever the scene, so H/E only reads the scene when the features are spread
+            hit &= col(df, "entropy_norm") >= p["min_entropy"]
+    return hit
 
 
 _QUADRANT_WORDS = {
@@ -295,6 +300,10 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
         q = int(_quadrant(np.array([he]), np.array([par]), p)[0])
     out += [f"degenerate > {p['he_degenerate']:g} (general 3D < 0.5); parallax split at "
             f"{p['parallax_split_deg']:g} deg (rotation < 0.1, plane 2-3)", _QUADRANT_WORDS[q]]
+    ent = _v(row, "entropy_norm")
+    if "min_entropy" in p and not ent >= p["min_entropy"]:
+        out.append(f"not read: entropy_norm {_fmt(ent)} < {p['min_entropy']:g}, clustered "
+                   "features fit a homography whatever the scene (feature_clustering look-alike)")
     if q == 3:
         out.append(f"planar_degeneracy ruled out by parallax {par:.3g} deg < "
                    f"{p['parallax_split_deg']:g}")
@@ -432,11 +441,13 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
           frame=_exposure_step, explain=_exposure_explain, context=_exposure_context),
     Check("he_parallax_quadrant", "chapter 6: H/E inlier ratio x median parallax separates pure "
           "rotation, a planar scene, a nearly stationary camera and healthy motion",
-          "frame", "camera", ("h_over_e", "parallax_med_deg", "ref_frame"),
+          "frame", "camera", ("h_over_e", "parallax_med_deg", "ref_frame", "entropy_norm"),
           {"want": "choice:pure_rotation|planar_degeneracy", "he_degenerate": _NUM,
-           "parallax_split_deg": _NUM, "read_at": "choice:keyframe|frame"},
+           "parallax_split_deg": _NUM, "read_at": "choice:keyframe|frame",
+           "min_entropy": _NUM},
           {"h_over_e": "max", "parallax_med_deg": "min"},
-          {"he_degenerate": "h_over_e", "parallax_split_deg": "parallax_med_deg"},
+          {"he_degenerate": "h_over_e", "parallax_split_deg": "parallax_med_deg",
+           "min_entropy": "entropy_norm"},
           frame=_he_parallax, explain=_he_parallax_explain, context=_keyframe_read),
     Check("clustering", "chapter 1: low keypoint entropy with enough features, confirmed by the "
           "condition number of the pose information matrix",
