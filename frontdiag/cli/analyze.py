@@ -66,6 +66,9 @@ def analyze_cmd(
                                           help="Analyse at most N frames per sensor."),
     stride: int = typer.Option(1, "--stride", help="Analyse every N-th message."),
     features: int = typer.Option(1000, "--features", help="ORB features per frame."),
+    lidar_backend: str = typer.Option("auto", "--lidar-backend",
+                                      help="LiDAR registration: auto (small_gicp), small_gicp, "
+                                           "or open3d (needs frontdiag[open3d])."),
     rules_dir: Path | None = typer.Option(None, "--rules",
                                           help="Rules directory instead of the shipped rules/."),
     overrides: Path | None = typer.Option(None, "--overrides",
@@ -92,10 +95,13 @@ def analyze_cmd(
     from frontdiag.api import AnalysisOptions
     from frontdiag.camera.frontend import CameraParams
     from frontdiag.errors import EXIT_INTERRUPTED, EXIT_OK, ConfigError
+    from frontdiag.lidar.frontend import LidarParams
     from frontdiag.output import prepare_out_dir, write_manifest, write_table
 
     if fail_on not in ("warn", "fail", "never"):
         raise ConfigError(f"--fail-on {fail_on!r}: choose warn, fail or never")
+    if lidar_backend not in ("auto", "small_gicp", "open3d"):
+        raise ConfigError(f"--lidar-backend {lidar_backend!r}: choose auto, small_gicp or open3d")
     if fmt not in ("parquet", "csv"):
         raise ConfigError(f"--format {fmt!r}: choose parquet or csv")
     if features < 50:
@@ -106,6 +112,7 @@ def analyze_cmd(
         use_camera=not no_camera, use_lidar=not no_lidar, intrinsics=intrinsics,
         camera_info_file=str(camera_info) if camera_info else None, start_s=start, end_s=end,
         max_frames=max_frames, stride=stride, camera_params=CameraParams(n_features=features),
+        lidar_params=LidarParams(backend=lidar_backend),
         rules=not no_rules, rules_dir=str(rules_dir) if rules_dir else None,
         rules_overrides=str(overrides) if overrides else None, select=_split(select),
         ignore=_split(ignore))
