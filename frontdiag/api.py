@@ -362,7 +362,7 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
                     if frame is None:
                         _check_all_failed(cam_stream)
                         continue
-                    row = _camera_row(cam_front.process(frame), frame, rec_start)
+                    row = _row(cam_front.process(frame), frame, "camera", rec_start)
                     rows.append(row)
                     cam_stream.stats.analysed += 1
                 elif raw.topic == choice.lidar and lid_stream and lid_front:
@@ -374,7 +374,7 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
                     if scan is None:
                         _check_all_failed(lid_stream)
                         continue
-                    rows.append(_lidar_row(lid_front.process(scan), scan, rec_start))
+                    rows.append(_row(lid_front.process(scan), scan, "lidar", rec_start))
                     lid_stream.stats.analysed += 1
                 else:
                     continue
@@ -429,24 +429,17 @@ def _check_all_failed(stream: _SensorStream) -> None:
                           f"({st.first_error})")
 
 
-def _camera_row(metrics: dict[str, Any], frame: CameraFrame, rec_start: int) -> dict[str, Any]:
-    row: dict[str, Any] = {"frame": frame.index, "t_ns": frame.t_ns,
-                           "t_rel_s": (frame.log_ns - rec_start) / 1e9, "sensor": "camera",
-                           "topic": frame.topic}
+def _row(metrics: dict[str, Any], rec: CameraFrame | LidarScan, sensor: str,
+         rec_start: int) -> dict[str, Any]:
+    """The identifying columns, the frontend's metrics, and decode time added into ms_total."""
+    row: dict[str, Any] = {"frame": rec.index, "t_ns": rec.t_ns,
+                           "t_rel_s": (rec.log_ns - rec_start) / 1e9, "sensor": sensor,
+                           "topic": rec.topic}
     row.update(metrics)
-    row["ms_decode"] = frame.ms_decode
-    row["ms_total"] = float(metrics.get("ms_total", 0.0)) + frame.ms_decode
-    row["width"], row["height"] = int(frame.gray.shape[1]), int(frame.gray.shape[0])
-    return row
-
-
-def _lidar_row(metrics: dict[str, Any], scan: LidarScan, rec_start: int) -> dict[str, Any]:
-    row: dict[str, Any] = {"frame": scan.index, "t_ns": scan.t_ns,
-                           "t_rel_s": (scan.log_ns - rec_start) / 1e9, "sensor": "lidar",
-                           "topic": scan.topic}
-    row.update(metrics)
-    row["ms_decode"] = scan.ms_decode
-    row["ms_total"] = float(metrics.get("ms_total", 0.0)) + scan.ms_decode
+    row["ms_decode"] = rec.ms_decode
+    row["ms_total"] = float(metrics.get("ms_total", 0.0)) + rec.ms_decode
+    if isinstance(rec, CameraFrame):
+        row["width"], row["height"] = int(rec.gray.shape[1]), int(rec.gray.shape[0])
     return row
 
 

@@ -12,7 +12,6 @@ other processes on the target.
 from __future__ import annotations
 
 import dataclasses
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -120,38 +119,23 @@ class MeasuredReport:
 
 def read_frames(result_dir: Path) -> Any:
     """``frames.parquet`` (or ``frames.csv``) of an analyze result directory, as a DataFrame."""
-    import pandas as pd
+    from frontdiag.output import read_table
 
     result_dir = Path(result_dir)
     if not result_dir.is_dir():
         raise RecordingError(result_dir, "not a result directory (expected the --out directory "
                              "of frontdiag analyze)")
-    for name, reader in (("frames.parquet", pd.read_parquet), ("frames.csv", pd.read_csv)):
-        path = result_dir / name
-        if path.is_file():
-            try:
-                df = reader(path)
-            except Exception as exc:  # parquet/csv engines raise many types
-                raise RecordingError(path, f"cannot read: {exc}") from exc
-            break
-    else:
-        raise RecordingError(result_dir, "no frames.parquet or frames.csv",
-                             hint="write one with `frontdiag analyze RECORDING --out DIR`")
+    df = read_table(result_dir)
     missing = {"sensor", "ms_total"} - set(df.columns)
     if missing:
-        raise RecordingError(path, "missing column(s) " + ", ".join(sorted(missing)))
+        raise RecordingError(result_dir, "missing column(s) " + ", ".join(sorted(missing)))
     return df
 
 
 def read_manifest(result_dir: Path) -> dict[str, Any]:
-    path = Path(result_dir) / "manifest.json"
-    if not path.is_file():
-        return {}
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise RecordingError(path, f"cannot read manifest: {exc}") from exc
-    return data if isinstance(data, dict) else {}
+    from frontdiag.output import read_manifest as _read
+
+    return _read(Path(result_dir))
 
 
 def _flatten(d: Any, prefix: str = "") -> dict[str, Any]:
