@@ -152,14 +152,6 @@ class ScannedBag(_Base):
             seen.setdefault(topic, TopicInfo(topic, msgtype, self._counts.get(topic, 0), "ros1"))
         return list(seen.values())
 
-    @property
-    def start_ns(self) -> int | None:
-        return self._start
-
-    @property
-    def end_ns(self) -> int | None:
-        return self._end
-
     def messages(self, topics: Iterable[str], start_ns: int | None = None,
                  end_ns: int | None = None) -> Iterator[RawMessage]:
         self.fault = None

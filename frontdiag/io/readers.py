@@ -83,8 +83,21 @@ class Recording(Protocol):
 
 
 class _Base:
+    """Context management and the time span shared by the backends."""
+
     path: Path
     fault: ReadFault | None = None
+    _start: int | None = None
+    _end: int | None = None
+
+    @property
+    def start_ns(self) -> int | None:
+        return self._start
+
+    @property
+    def end_ns(self) -> int | None:
+        return self._end
+
 
     def __enter__(self) -> Any:
         return self
@@ -238,14 +251,6 @@ class McapRecording(_Base):
     @property
     def topics(self) -> list[TopicInfo]:
         return [TopicInfo(t, mt, self._counts.get(t), enc) for t, (mt, enc) in self._channels.items()]
-
-    @property
-    def start_ns(self) -> int | None:
-        return self._start
-
-    @property
-    def end_ns(self) -> int | None:
-        return self._end
 
     def messages(self, topics: Iterable[str], start_ns: int | None = None,
                  end_ns: int | None = None) -> Iterator[RawMessage]:
