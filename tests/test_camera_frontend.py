@@ -15,7 +15,7 @@ from frontdiag import metrics
 from frontdiag.camera import synthetic as S
 from frontdiag.camera.features import OrbExtractor
 from frontdiag.camera.frontend import CameraFrontend, CameraParams
-from frontdiag.camera.matching import descriptor_signs, hamming_matrix, match
+from frontdiag.camera.matching import hamming_matrix, match
 from frontdiag.records import CameraFrame, Intrinsics
 
 SIZE = (640, 480)
@@ -102,7 +102,7 @@ def test_matcher_equals_opencv_knn_ratio_plus_cross_check() -> None:
     frames = walk(2, step_deg=0.5)
     ex = OrbExtractor()
     a, b = ex.detect_and_compute(frames[0]), ex.detect_and_compute(frames[1])
-    m = match(descriptor_signs(b.des), descriptor_signs(a.des), 0.8, True)
+    m = match(b.des, a.des, 0.8, True)
     bf = cv2.BFMatcher(cv2.NORM_HAMMING)
     knn = bf.knnMatch(b.des, a.des, k=2)
     passed = {(x.queryIdx, x.trainIdx) for x, y in knn if x.distance < 0.8 * y.distance}
@@ -112,9 +112,9 @@ def test_matcher_equals_opencv_knn_ratio_plus_cross_check() -> None:
     # ties between equal distances may resolve differently; they are rare
     assert len(ours ^ mutual) <= 0.01 * len(mutual)
     assert m.n_ratio_rejected == pytest.approx(len(b.des) - len(passed), abs=5)
-    D = hamming_matrix(descriptor_signs(b.des[:5]), descriptor_signs(a.des[:7]))
-    ref = np.array([[cv2.norm(x, y, cv2.NORM_HAMMING) for y in a.des[:7]] for x in b.des[:5]])
-    assert np.array_equal(D, ref)
+    D = hamming_matrix(b.des[:40], a.des[:70])
+    ref = np.array([[cv2.norm(x, y, cv2.NORM_HAMMING) for y in a.des[:70]] for x in b.des[:40]])
+    assert D.shape == (40, 70) and np.array_equal(D, ref)
 
 
 def test_repeated_texture_raises_the_ratio_reject_rate() -> None:

@@ -12,7 +12,7 @@ import pytest
 from frontdiag.camera.features import OrbExtractor
 from frontdiag.camera.frontend import CameraFrontend, CameraParams
 from frontdiag.camera.geometry import two_view
-from frontdiag.camera.matching import descriptor_signs, match
+from frontdiag.camera.matching import match
 from frontdiag.records import CameraFrame, Intrinsics
 
 DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -41,7 +41,7 @@ def test_kitti_pair_matches_ground_truth(a: int, b: int, max_dir_err_deg: float)
 
     ex = OrbExtractor()
     fa, fb = ex.detect_and_compute(img_a), ex.detect_and_compute(img_b)
-    m = match(descriptor_signs(fb.des), descriptor_signs(fa.des))
+    m = match(fb.des, fa.des)
     tv = two_view(fa.xy[m.train], fb.xy[m.query], K)
     assert tv.t_dir is not None
     err = math.degrees(math.acos(float(np.clip(tv.t_dir @ t_gt / np.linalg.norm(t_gt), -1, 1))))

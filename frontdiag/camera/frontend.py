@@ -36,7 +36,7 @@ from frontdiag.camera.geometry import (
     two_view,
     undistort_points,
 )
-from frontdiag.camera.matching import descriptor_signs, match
+from frontdiag.camera.matching import match
 from frontdiag.camera.photometric import photometric
 from frontdiag.records import CameraFrame, Intrinsics
 from frontdiag.timing import Clock, StageTimer
@@ -73,12 +73,11 @@ class CameraParams:
 
 @dataclass
 class _View:
-    """What is kept of a frame: features, +/-1 descriptor bits, undistorted points, tracks."""
+    """What is kept of a frame: features, undistorted points, tracks."""
 
     index: int
     gray: np.ndarray
     feats: Features
-    signs: np.ndarray
     und: np.ndarray  # (N, 2) undistorted pixel coordinates
     kf_idx: np.ndarray  # (N,) index of the reference keyframe feature this one tracks, or -1
     mean: float = NAN
@@ -140,13 +139,13 @@ class CameraFrontend:
         mean = float(cv2.mean(gray)[0]) if gray.size else NAN
         row["mean_intensity"] = mean
         und = undistort_points(feats.xy, self.intrinsics)
-        return _View(frame.index, gray, feats, descriptor_signs(feats.des), und,
+        return _View(frame.index, gray, feats, und,
                      np.full(len(feats), -1, np.intp), mean)
 
     def _match(self, cur: _View, prev: _View, kf: _Keyframe, row: dict[str, Any]
                ) -> tuple[np.ndarray, np.ndarray]:
         p = self.params
-        m = match(cur.signs, prev.signs, p.ratio, p.mutual)
+        m = match(cur.feats.des, prev.feats.des, p.ratio, p.mutual)
         row.update(n_putative=m.n_putative, ratio_reject_rate=m.ratio_reject_rate,
                    n_matches=len(m.query))
         cur.kf_idx[m.query] = prev.kf_idx[m.train]
@@ -164,7 +163,7 @@ class CameraFrontend:
         if len(lost) < 2 or len(free) == 0:
             return
         p = self.params
-        m = match(cur.signs[free], kfv.signs[lost], p.ratio, p.mutual)
+        m = match(cur.feats.des[free], kfv.feats.des[lost], p.ratio, p.mutual)
         cur.kf_idx[free[m.query]] = lost[m.train]
 
     def _geometry(self, cur: _View, kf: _Keyframe, row: dict[str, Any]) -> bool:

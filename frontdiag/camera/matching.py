@@ -1,37 +1,49 @@
 """Unguided Hamming matching: Lowe ratio test and mutual consistency from ONE distance matrix.
 
-The whole query-by-train Hamming matrix comes from a single float GEMM: with descriptor bits
-mapped to +/-1, the dot product of two 256-bit descriptors is 256 - 2 * Hamming distance.
-On one core that costs less than one brute-force OpenCV kNN pass, and both slices of the matrix
-the lesson asks for come out of it: the row's two best (ratio test) and the column's best
-(mutual consistency). ``cv2.BFMatcher(crossCheck=True)`` cannot be combined with ``knnMatch(k=2)``,
-and running the kNN in both directions would double the cost (lesson, chapter 2).
+The whole query-by-train Hamming matrix is computed once, exactly, by FAISS's popcount kernel
+(``faiss.hammings``: XOR + hardware popcount on the packed 256-bit descriptors, about 0.2 ms for
+1000 x 1000 on one core). Both slices of the matrix the lesson asks for come out of it: the
+row's two best (ratio test) and the column's best (mutual consistency).
+``cv2.BFMatcher(crossCheck=True)`` cannot be combined with ``knnMatch(k=2)``, and running the kNN
+in both directions would cost more than ORB itself (lesson, chapter 2);
+``benchmarks/bench_camera.py`` measures the alternatives side by side.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
-import cv2
 import numpy as np
 
 N_BITS = 256
+N_BYTES = N_BITS // 8
+
+_faiss: Any = None
 
 
-_SIGNS = (np.unpackbits(np.arange(256, dtype=np.uint8)[:, None], axis=1)
-          .astype(np.float32) * 2.0 - 1.0)  # byte value -> its 8 bits as -1/+1, MSB first
+def _faiss_module() -> Any:
+    global _faiss
+    if _faiss is None:
+        import faiss  # imported on first use: `frontdiag --help` need not load it
+
+        _faiss = faiss
+    return _faiss
 
 
-def descriptor_signs(des: np.ndarray) -> np.ndarray:
-    """(N, 32) uint8 ORB descriptors -> (N, 256) float32 in {-1, +1}; computed once per frame."""
-    return np.take(_SIGNS, des.ravel(), axis=0).reshape(len(des), N_BITS)
-
-
-def hamming_matrix(q_signs: np.ndarray, t_signs: np.ndarray) -> np.ndarray:
-    """Exact Hamming distances (float32) between every query and train descriptor."""
-    dot = cv2.gemm(q_signs, t_signs, 1.0, None, 0.0,  # type: ignore[call-overload]
-                   flags=cv2.GEMM_2_T)
-    return (N_BITS - dot) * 0.5
+def hamming_matrix(q_des: np.ndarray, t_des: np.ndarray) -> np.ndarray:
+    """Exact Hamming distances (int32, ``(len(q), len(t))``) between packed ORB descriptors."""
+    q = np.ascontiguousarray(q_des, dtype=np.uint8)
+    t = np.ascontiguousarray(t_des, dtype=np.uint8)
+    if q.ndim != 2 or t.ndim != 2 or q.shape[1] != t.shape[1]:
+        raise ValueError(f"descriptor shapes differ: {q.shape} vs {t.shape}")
+    out = np.empty((len(q), len(t)), np.int32)
+    if len(q) == 0 or len(t) == 0:
+        return out
+    faiss = _faiss_module()
+    faiss.hammings(faiss.swig_ptr(q), faiss.swig_ptr(t), len(q), len(t), q.shape[1],
+                   faiss.swig_ptr(out))
+    return out
 
 
 @dataclass(frozen=True)
@@ -48,36 +60,33 @@ class Matches:
         return self.n_ratio_rejected / self.n_putative if self.n_putative else float("nan")
 
     @staticmethod
-    def none(n_query: int = 0) -> Matches:
+    def none() -> Matches:
         empty = np.zeros(0, np.intp)
         return Matches(empty, empty, 0, 0)
 
 
-def match(q_signs: np.ndarray, t_signs: np.ndarray, ratio: float = 0.8,
+def match(q_des: np.ndarray, t_des: np.ndarray, ratio: float = 0.8,
           mutual: bool = True) -> Matches:
     """Nearest neighbour of every query among all train descriptors, with both tests.
 
     ``ratio_reject_rate`` counts every query whose best match fails d1 < ratio*d2, regardless
     of the mutual check: it is the global repetitive-structure statistic of chapter 2.
+    Ties resolve to the lowest index, in rows and in columns, so the result is deterministic.
     """
-    nq, nt = len(q_signs), len(t_signs)
+    nq, nt = len(q_des), len(t_des)
     if nq == 0 or nt < 2:
-        return Matches.none(nq)
-    dot = cv2.gemm(q_signs, t_signs, 1.0, None, 0.0,  # type: ignore[call-overload]
-                   flags=cv2.GEMM_2_T)
+        return Matches.none()
+    d = hamming_matrix(q_des, t_des)
     rows = np.arange(nq)
-    j1 = dot.argmax(axis=1)
-    s1 = dot[rows, j1]
-    # column best by value (max along axis 0 is several times faster than argmax there)
-    col_best = dot.max(axis=0) if mutual else None
-    dot[rows, j1] = -np.inf
-    s2 = dot.max(axis=1)
-    d1 = (N_BITS - s1) * 0.5
-    d2 = (N_BITS - s2) * 0.5
+    j1 = d.argmin(axis=1)
+    d1 = d[rows, j1]
+    col_best = d.min(axis=0) if mutual else None
+    d[rows, j1] = N_BITS + 1
+    d2 = d.min(axis=1)
     passed = d1 < ratio * d2
     keep = passed
     if col_best is not None:
-        keep = passed & (s1 >= col_best[j1])
+        keep = passed & (d1 <= col_best[j1])
     q = np.flatnonzero(keep)
     t = j1[q]
     if col_best is not None and len(q):
