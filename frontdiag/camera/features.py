@@ -202,25 +202,26 @@ class OrbExtractor:
         empty = np.bincount(cell[cell >= 0], minlength=cols * rows) == 0
         # Retry the empty cells at the low threshold, on their pixels only: one FAST call per
         # horizontal run of empty cells (with the 3-pixel ring margin FAST needs around it).
+        # A corner found in the margin belongs to a neighbouring cell: it is kept only by the
+        # run that owns its cell, so no corner is counted twice.
         if empty.any():
-            offsets = []
+            offsets, owners = [], []
             for r, c0, c1 in _runs(empty.reshape(rows, cols)):
                 ya, yb = max(int(y0 + r * ch) - 3, 0), int(y0 + (r + 1) * ch) + 4
                 xa, xb = max(int(x0 + c0 * cw) - 3, 0), int(x0 + c1 * cw) + 4
                 weak = self._fast_min.detect(img[ya:yb, xa:xb])
                 if weak:
                     kps += weak
-                    offsets.append(np.broadcast_to(np.array([xa, ya], np.float32), (len(weak), 2)))
+                    offsets.append((len(weak), xa, ya))
+                    owners.append((r * cols + c0, r * cols + c1))
             if offsets:
-                wxy = _points(kps[n_strong:]) + np.concatenate(offsets)
+                counts, xa_, ya_ = (np.array(v) for v in zip(*offsets, strict=True))
+                wxy = _points(kps[n_strong:])
+                wxy[:, 0] += np.repeat(xa_, counts)
+                wxy[:, 1] += np.repeat(ya_, counts)
+                first, end = (np.repeat(np.array(v), counts) for v in zip(*owners, strict=True))
                 wcell = cells_of(wxy)
-                wcell[~empty[wcell]] = -1  # only cells that were empty (and not outside: -1)
-                # runs of neighbouring rows overlap by the margin: a corner there is seen twice
-                _, first = np.unique(wxy, axis=0, return_index=True)
-                if len(first) < len(wxy):
-                    dup = np.ones(len(wxy), bool)
-                    dup[first] = False
-                    wcell[dup] = -1
+                wcell[(wcell < first) | (wcell >= end)] = -1
                 xy = np.concatenate([xy, wxy])
                 cell = np.concatenate([cell, wcell])
         valid = np.flatnonzero(cell >= 0)

@@ -243,7 +243,9 @@ def evaluate(table: pd.DataFrame, ruleset: Ruleset) -> Verdicts:
     """Run every rule of the ruleset over the per-frame table."""
     out = table.drop(columns=[c for c in VERDICT_COLUMNS if c in table.columns]).copy()
     out = out.reset_index(drop=True)
-    out.attrs = dict(table.attrs)
+    # pandas deep-copies attrs into every column it hands out: keep the (large) manifest
+    # aside while the rules read columns, and put it back on the result
+    out.attrs = {}
     hits = _frame_hits(out, ruleset.frame_rules)
     n = len(out)
     conds: list[list[str]] = [[] for _ in range(n)]
@@ -269,4 +271,5 @@ def evaluate(table: pd.DataFrame, ruleset: Ruleset) -> Verdicts:
                                    outcome.value, outcome.message, outcome.frames))
     episodes = _episodes(out, ruleset.frame_rules, hits, relative_time(out),
                          ruleset.run.episodes.max_gap_frames)
+    out.attrs = dict(table.attrs)
     return Verdicts(out, episodes, findings, ruleset, hits)
