@@ -83,8 +83,13 @@ class Target:
 
 
 def targets_dir() -> Path:
-    """The shipped target files: ``rules/targets`` next to the package."""
-    return Path(__file__).resolve().parents[2] / "rules" / "targets"
+    """The shipped target files: ``targets/`` of the shipped rules directory."""
+    from frontdiag.verdicts.loader import default_rules_dir
+
+    try:
+        return default_rules_dir() / "targets"
+    except ConfigError:
+        return Path(__file__).resolve().parents[2] / "rules" / "targets"
 
 
 def available_targets(directory: Path | None = None) -> list[str]:

@@ -31,7 +31,8 @@ _TOP_KEYS = {"about", "rule", "run"}
 
 
 def default_rules_dir() -> Path:
-    """The repository's rules/ next to the package (an editable or source install)."""
+    """The shipped rules: the repository's rules/ next to the package (editable or source
+    install), else the copy a wheel carries in frontdiag/data/rules (see setup.py)."""
     import frontdiag
 
     here = Path(frontdiag.__file__).resolve()
