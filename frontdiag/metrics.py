@@ -9,6 +9,25 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
+import numpy as np
+
+# The lesson's feature-count figures (1000 healthy, ~120 failed) are for 1280x720 with a
+# 1000-feature budget. The corners a scene offers scale with the pixel area, so below that size
+# the budget a frame can be expected to fill is prorated by area.
+REFERENCE_AREA_PX = 1280 * 720
+DEFAULT_FEATURE_BUDGET = 1000  # the lesson's ORB budget (CameraParams.n_features)
+
+
+def keypoint_fill(n_keypoints: np.ndarray | float, width: np.ndarray | float,
+                  height: np.ndarray | float, budget: float) -> np.ndarray:
+    """n_keypoints / (budget x min(1, width*height / 1280x720)); an unknown size counts as
+    the reference size."""
+    area = np.asarray(width, dtype=float) * np.asarray(height, dtype=float)
+    share = np.where(np.isfinite(area) & (area > 0), np.minimum(1.0, area / REFERENCE_AREA_PX),
+                     1.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.asarray(n_keypoints, dtype=float) / (budget * share)
+
 Better = Literal["higher", "lower", "none"]
 
 
@@ -35,6 +54,13 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
     _M("n_keypoints", "count", "camera", "ORB keypoints detected", "higher"),
     _M("entropy_norm", "ratio", "camera",
        "keypoint spatial entropy over an 8x6 grid divided by log2(48); >0.74 ok, <0.6 alarm", "higher"),
+    _M("keypoint_fill", "ratio", "camera",
+       "n_keypoints / (feature budget x min(1, pixels / 1280x720)): the share of the budget a "
+       "frame of this size should fill; ~1 healthy, the lesson's failed frame (~120 of 1000) 0.12",
+       "higher"),
+    _M("entropy_inliers_norm", "ratio", "camera",
+       "entropy_norm of the essential-matrix inliers in this frame: where the constraints on the "
+       "pose come from (spread weak keypoints that never match do not constrain it)", "higher"),
     _M("occupied_cells", "count", "camera", "cells of the 8x6 grid holding at least one keypoint", "higher"),
     _M("n_weak_keypoints", "count", "camera",
        "keypoints from the low-threshold FAST retry (t=7) in cells empty at t=20; many = low contrast"),

@@ -28,7 +28,8 @@ from frontdiag.sim.run import labels_path_for  # noqa: E402
 
 COUNTS = ("episodes", "episodes_found", "frames_labelled", "true_positives", "false_positives",
           "healthy_frames", "false_alarms")
-CAMERA_METRICS = ("n_keypoints", "entropy_norm", "ratio_reject_rate", "h_over_e",
+CAMERA_METRICS = ("n_keypoints", "keypoint_fill", "entropy_norm", "entropy_inliers_norm",
+                  "pose_info_cond", "ratio_reject_rate", "h_over_e",
                   "parallax_med_deg", "d_mean_intensity", "photo_residual_med")
 LIDAR_METRICS = ("lidar_eig_min", "lidar_cond")
 

@@ -55,7 +55,7 @@ def test_explain_by_time_and_clustering_confirmation(result_dir, capsys) -> None
     assert main(["explain", str(result_dir), "--t", "1.17"]) == 0     # frame 35 at 30 Hz
     out = capsys.readouterr().out
     assert "frame 35" in out
-    assert "detection_failure ruled out by n_keypoints 1000 >= 300" in out
+    assert "detection_failure ruled out by keypoint_fill 1 (1000 keypoints) >= 0.3" in out
     assert "confirmed" in out
 
 

@@ -164,13 +164,13 @@ def test_override_file_changes_a_threshold(tmp_path) -> None:
 
 def test_override_clause_threshold_severity_persistence_and_disable(tmp_path) -> None:
     ov = tmp_path / "ov.toml"
-    ov.write_text('[FD-DET-001]\nthreshold.n_keypoints = 150\nseverity = "warn"\n'
+    ov.write_text('[FD-DET-001]\nthreshold.keypoint_fill = 0.15\nseverity = "warn"\n'
                   '[FD-ROT-001]\npersistence = { k = 1, n = 1 }\n'
                   '[FD-REP-001]\nenabled = false\n'
                   '[run.episodes]\nmax_gap_frames = 0\n')
     rs = load_ruleset(overrides=ov)
     det = rs.get("FD-DET-001")
-    assert det.when[0].value == 150 and det.severity == "warn"
+    assert det.when[0].value == 0.15 and det.severity == "warn"
     assert rs.get("FD-ROT-001").persistence.k == 1
     assert "FD-REP-001" not in {r.id for r in rs.rules}
     assert rs.run.episodes.max_gap_frames == 0

@@ -6,8 +6,8 @@ from typing import Any
 
 import pandas as pd
 
-HEALTHY_CAMERA: dict[str, Any] = dict(
-    n_keypoints=1000, entropy_norm=0.85, n_putative=900, ratio_reject_rate=0.30, n_matches=420,
+HEALTHY_CAMERA: dict[str, Any] = dict(  # keypoint_fill is derived: budget 1000 at 1280x720
+    width=1280, height=720, n_keypoints=1000, entropy_norm=0.85, entropy_inliers_norm=0.85, n_putative=900, ratio_reject_rate=0.30, n_matches=420,
     inliers_e=300, inliers_h=126, h_over_e=0.42, inlier_ratio=0.85, ransac_iters_required=12,
     ransac_iters_run=40, parallax_med_deg=2.1, rot_deg=1.0, pose_info_cond=50.0,
     mean_intensity=120.0, d_mean_intensity=0.5, photo_residual_med=4.0, affine_gain=1.0,
@@ -33,6 +33,8 @@ def frames(n: int, changes: dict[int | range, dict[str, Any]] | None = None, *,
         for key, upd in (changes or {}).items():
             if (i in key) if isinstance(key, range) else i == key:
                 r.update(upd)
+        if sensor == "camera" and "keypoint_fill" not in r:  # 1280x720, budget 1000
+            r["keypoint_fill"] = r["n_keypoints"] / 1000
         rows.append(r)
     return pd.DataFrame(rows)
 

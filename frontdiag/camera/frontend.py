@@ -38,6 +38,7 @@ from frontdiag.camera.geometry import (
 )
 from frontdiag.camera.matching import match
 from frontdiag.camera.photometric import photometric
+from frontdiag.metrics import DEFAULT_FEATURE_BUDGET, keypoint_fill
 from frontdiag.records import CameraFrame, Intrinsics
 from frontdiag.timing import Clock, StageTimer
 
@@ -48,7 +49,7 @@ NAN = float("nan")
 class CameraParams:
     """Frontend parameters; the defaults are the lesson's."""
 
-    n_features: int = 1000
+    n_features: int = DEFAULT_FEATURE_BUDGET
     n_levels: int = 8
     scale_factor: float = 1.2
     fast_threshold: int = 20
@@ -93,7 +94,8 @@ class _Keyframe:
 
 def _row_template() -> dict[str, Any]:
     return {
-        "n_keypoints": 0, "n_weak_keypoints": 0, "entropy_norm": NAN, "occupied_cells": 0,
+        "n_keypoints": 0, "n_weak_keypoints": 0, "keypoint_fill": NAN, "entropy_norm": NAN,
+        "occupied_cells": 0, "entropy_inliers_norm": NAN,
         "n_putative": 0, "ratio_reject_rate": NAN, "n_matches": 0,
         "ref_frame": -1, "n_ref_matches": 0, "tracked_share": NAN,
         "inliers_e": NAN, "inliers_h": NAN, "h_over_e": NAN, "inlier_ratio": NAN,
@@ -134,8 +136,9 @@ class CameraFrontend:
         feats = self._extractor.detect_and_compute(gray) if gray.ndim == 2 else Features.empty()
         h, w = gray.shape[:2] if gray.ndim >= 2 else (0, 0)
         ent, occ = spatial_entropy(feats.xy, w, h)
+        fill = float(keypoint_fill(len(feats), w, h, self.params.n_features))
         row.update(n_keypoints=len(feats), n_weak_keypoints=feats.n_weak, entropy_norm=ent,
-                   occupied_cells=occ)
+                   occupied_cells=occ, keypoint_fill=fill)
         mean = float(cv2.mean(gray)[0]) if gray.size else NAN
         row["mean_intensity"] = mean
         und = undistort_points(feats.xy, self.intrinsics)
@@ -184,6 +187,10 @@ class CameraFrontend:
         tv = two_view(p_ref, p_cur, self._K, sigma_px=p.sigma_px,
                       confidence=p.ransac_confidence, max_iters=p.ransac_max_iters, seed=p.seed)
         row.update(inliers_h=tv.inliers_h)
+        if tv.inlier_mask is not None and tv.inlier_mask.any():
+            h, w = cur.gray.shape[:2]
+            row["entropy_inliers_norm"] = spatial_entropy(cur.feats.xy[sel[tv.inlier_mask]],
+                                                          w, h)[0]
         if self._K is None:
             row["status"] = "no_intrinsics"
             return False

@@ -97,6 +97,7 @@ class TwoView:
     pose_info_cond: float = float("nan")
     t_dir: np.ndarray | None = None  # unit translation direction, reference -> current
     ok_e: bool = False
+    inlier_mask: np.ndarray | None = None  # (n_corr,) bool: the essential-matrix inliers
 
     @property
     def h_over_e(self) -> float:
@@ -246,11 +247,12 @@ def two_view(p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray | None, *,
     inl_e = int(np.count_nonzero(sel))
     w = inl_e / n
     if inl_e < E_SAMPLE:
-        return TwoView(n, inliers_e=float(inl_e), inliers_h=inl_h, inlier_ratio=w)
+        return TwoView(n, inliers_e=float(inl_e), inliers_h=inl_h, inlier_ratio=w,
+                       inlier_mask=sel)
     f_ref, f_cur = bearings(p_ref[sel], K), bearings(p_cur[sel], K)
     R, t, par = decompose(E, f_ref, f_cur)
     rot = float(np.degrees(np.linalg.norm(cv2.Rodrigues(R)[0])))
     cond = pose_information_condition(f_ref, f_cur, K, R, t)
     return TwoView(n, inliers_e=float(inl_e), inliers_h=inl_h, inlier_ratio=w, rot_deg=rot,
                    parallax_med_deg=float(np.median(par)), pose_info_cond=cond,
-                   t_dir=t / max(float(np.linalg.norm(t)), 1e-12), ok_e=True)
+                   t_dir=t / max(float(np.linalg.norm(t)), 1e-12), ok_e=True, inlier_mask=sel)

@@ -92,24 +92,28 @@ def _after_step(dmean: np.ndarray, step: float, frames: int) -> np.ndarray:
 
 
 def _matching_table(df: pd.DataFrame, p: Params) -> np.ndarray:
-    kp = col(df, "n_keypoints")
+    fill = col(df, "keypoint_fill")
     rej = col(df, "ratio_reject_rate")
     with np.errstate(invalid="ignore"):
         near_step = _after_step(col(df, "d_mean_intensity"), p["dmean_step"], p["recovery_frames"])
-        return (kp >= p["kp_floor"]) & (rej >= p["reject_repetitive"]) & ~near_step
+        return (fill >= p["fill_floor"]) & (rej >= p["reject_repetitive"]) & ~near_step
+
+
+def _fill_words(kp: float, fill: float) -> str:
+    return f"keypoint_fill {_fmt(fill)} ({_fmt(kp)} keypoints)"
 
 
 def _matching_table_explain(row: Mapping[str, Any], p: Params) -> list[str]:
-    kp, rej = _v(row, "n_keypoints"), _v(row, "ratio_reject_rate")
+    kp, fill, rej = (_v(row, m) for m in ("n_keypoints", "keypoint_fill", "ratio_reject_rate"))
     dm = _v(row, "d_mean_intensity")
     out = []
-    if np.isnan(kp):
-        return ["n_keypoints not computable: the chapter 2 table cannot be read"]
-    if kp < p["kp_floor"]:
-        out.append(f"n_keypoints {_fmt(kp)} < {p['kp_floor']:g}: detection failed (lesson: ~120 "
-                   "features); repetitive structure ruled out, whatever the rejection rate")
+    if np.isnan(fill):
+        return ["keypoint_fill not computable: the chapter 2 table cannot be read"]
+    if fill < p["fill_floor"]:
+        out.append(f"{_fill_words(kp, fill)} < {p['fill_floor']:g}: detection failed (lesson: "
+                   "~120 of 1000); repetitive structure ruled out, whatever the rejection rate")
         return out
-    out.append(f"n_keypoints {_fmt(kp)} >= {p['kp_floor']:g}: detection_failure ruled out "
+    out.append(f"{_fill_words(kp, fill)} >= {p['fill_floor']:g}: detection_failure ruled out "
                "(features are fine)")
     if np.isnan(rej):
         out.append("ratio_reject_rate not computable (no previous frame)")
@@ -274,7 +278,7 @@ def _he_parallax(df: pd.DataFrame, p: Params) -> np.ndarray:
         if "min_entropy" in p:
             # features crowded into a small cone are locally planar: a homography fits them
             # whatever the scene, so H/E only reads the scene when the features are spread
-            hit &= col(df, "entropy_norm") >= p["min_entropy"]
+            hit &= constraint_entropy(df) >= p["min_entropy"]
     return hit
 
 
@@ -300,10 +304,11 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
         q = int(_quadrant(np.array([he]), np.array([par]), p)[0])
     out += [f"degenerate > {p['he_degenerate']:g} (general 3D < 0.5); parallax split at "
             f"{p['parallax_split_deg']:g} deg (rotation < 0.1, plane 2-3)", _QUADRANT_WORDS[q]]
-    ent = _v(row, "entropy_norm")
+    ent = float(np.fmin(_v(row, "entropy_norm"), _v(row, "entropy_inliers_norm")))
     if "min_entropy" in p and not ent >= p["min_entropy"]:
-        out.append(f"not read: entropy_norm {_fmt(ent)} < {p['min_entropy']:g}, clustered "
-                   "features fit a homography whatever the scene (feature_clustering look-alike)")
+        out.append(f"not read: entropy (keypoints or inliers, the lower) {_fmt(ent)} < "
+                   f"{p['min_entropy']:g}, clustered features fit a homography whatever the "
+                   "scene (feature_clustering look-alike)")
     if q == 3:
         out.append(f"planar_degeneracy ruled out by parallax {par:.3g} deg < "
                    f"{p['parallax_split_deg']:g}")
@@ -318,21 +323,37 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
 
 # --- chapter 1: clustering confirmed by the pose information matrix ----------------------------
 
-def _clustering(df: pd.DataFrame, p: Params) -> np.ndarray:
-    ent, kp, cond = col(df, "entropy_norm"), col(df, "n_keypoints"), col(df, "pose_info_cond")
+def constraint_entropy(df: pd.DataFrame) -> np.ndarray:
+    """The lower of keypoint entropy and essential-inlier entropy (NaN only if both are).
+
+    Bucketing with a low-threshold retry spreads keypoints over blank cells, but corners found
+    in sensor noise never match: the pose is constrained only where the inliers are.
+    """
     with np.errstate(invalid="ignore"):
-        return (ent < p["entropy_alarm"]) & (kp >= p["kp_floor"]) & (cond > p["cond_confirm"])
+        return np.fmin(col(df, "entropy_norm"), col(df, "entropy_inliers_norm"))
+
+
+def _clustering(df: pd.DataFrame, p: Params) -> np.ndarray:
+    ent, fill = constraint_entropy(df), col(df, "keypoint_fill")
+    cond = col(df, "pose_info_cond")
+    with np.errstate(invalid="ignore"):
+        return (ent < p["entropy_alarm"]) & (fill >= p["fill_floor"]) & (cond > p["cond_confirm"])
 
 
 def _clustering_explain(row: Mapping[str, Any], p: Params) -> list[str]:
-    ent, kp, cond = (_v(row, m) for m in ("entropy_norm", "n_keypoints", "pose_info_cond"))
-    out = [f"entropy_norm {_fmt(ent)} vs alarm < {p['entropy_alarm']:g} "
-           "(uniform 1.0, acceptable 0.737, 8 cells 0.537, 4 cells 0.358)"]
-    if not np.isnan(kp) and kp < p["kp_floor"]:
-        out.append(f"n_keypoints {kp:.0f} < {p['kp_floor']:g}: few features crowd few cells; "
-                   "that is detection_failure, not clustering")
-    elif not np.isnan(kp):
-        out.append(f"detection_failure ruled out by n_keypoints {kp:.0f} >= {p['kp_floor']:g}")
+    ent, ent_in, kp, fill, cond = (_v(row, m) for m in (
+        "entropy_norm", "entropy_inliers_norm", "n_keypoints", "keypoint_fill", "pose_info_cond"))
+    out = [f"entropy_norm {_fmt(ent)}, of the inliers {_fmt(ent_in)}, vs alarm < "
+           f"{p['entropy_alarm']:g} (uniform 1.0, acceptable 0.737, 8 cells 0.537, 4 cells 0.358)"]
+    if ent >= p["entropy_alarm"] and ent_in < p["entropy_alarm"]:
+        out.append("the keypoints are spread but the inliers are not: the spread keypoints do "
+                   "not match, so they do not constrain the pose")
+    if not np.isnan(fill) and fill < p["fill_floor"]:
+        out.append(f"{_fill_words(kp, fill)} < {p['fill_floor']:g}: few features crowd few "
+                   "cells; that is detection_failure, not clustering")
+    elif not np.isnan(fill):
+        out.append(f"detection_failure ruled out by {_fill_words(kp, fill)} >= "
+                   f"{p['fill_floor']:g}")
     if np.isnan(cond):
         out.append("pose_info_cond not computable (no intrinsics?): clustering unconfirmed")
     elif cond > p["cond_confirm"]:
@@ -423,10 +444,11 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
     Check("matching_table", "chapter 2 table: repetitive structure is ~85% ratio-test rejection "
           "with the features intact (not ~120 features: detection failure) and not inside the "
           "2-3 frames after an exposure step (~55%, recovering)", "frame", "camera",
-          ("n_keypoints", "ratio_reject_rate", "d_mean_intensity"),
-          {"kp_floor": _NUM, "reject_repetitive": _NUM, "dmean_step": _NUM, "recovery_frames": _NUM},
+          ("n_keypoints", "keypoint_fill", "ratio_reject_rate", "d_mean_intensity"),
+          {"fill_floor": _NUM, "reject_repetitive": _NUM, "dmean_step": _NUM,
+           "recovery_frames": _NUM},
           {"n_keypoints": "min", "ratio_reject_rate": "max"},
-          {"kp_floor": "n_keypoints", "reject_repetitive": "ratio_reject_rate",
+          {"fill_floor": "keypoint_fill", "reject_repetitive": "ratio_reject_rate",
            "dmean_step": "d_mean_intensity"},
           frame=_matching_table, explain=_matching_table_explain),
     Check("exposure_step", "chapter 4: a jump of mean intensity with the photometric residual "
@@ -441,7 +463,8 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
           frame=_exposure_step, explain=_exposure_explain, context=_exposure_context),
     Check("he_parallax_quadrant", "chapter 6: H/E inlier ratio x median parallax separates pure "
           "rotation, a planar scene, a nearly stationary camera and healthy motion",
-          "frame", "camera", ("h_over_e", "parallax_med_deg", "ref_frame", "entropy_norm"),
+          "frame", "camera", ("h_over_e", "parallax_med_deg", "ref_frame", "entropy_norm",
+                              "entropy_inliers_norm"),
           {"want": "choice:pure_rotation|planar_degeneracy", "he_degenerate": _NUM,
            "parallax_split_deg": _NUM, "read_at": "choice:keyframe|frame",
            "min_entropy": _NUM},
@@ -451,11 +474,11 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
           frame=_he_parallax, explain=_he_parallax_explain, context=_keyframe_read),
     Check("clustering", "chapter 1: low keypoint entropy with enough features, confirmed by the "
           "condition number of the pose information matrix",
-          "frame", "camera", ("entropy_norm", "n_keypoints", "pose_info_cond"),
-          {"entropy_alarm": _NUM, "kp_floor": _NUM,
-           "cond_confirm": _NUM},
-          {"entropy_norm": "min", "pose_info_cond": "max"},
-          {"entropy_alarm": "entropy_norm", "kp_floor": "n_keypoints",
+          "frame", "camera", ("entropy_norm", "entropy_inliers_norm", "n_keypoints",
+                              "keypoint_fill", "pose_info_cond"),
+          {"entropy_alarm": _NUM, "fill_floor": _NUM, "cond_confirm": _NUM},
+          {"entropy_norm": "min", "entropy_inliers_norm": "min", "pose_info_cond": "max"},
+          {"entropy_alarm": "entropy_norm", "fill_floor": "keypoint_fill",
            "cond_confirm": "pose_info_cond"},
           frame=_clustering, explain=_clustering_explain),
     Check("ransac_starved", "chapters 3 and 7: the iterations the measured inlier ratio requires "

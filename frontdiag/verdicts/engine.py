@@ -10,7 +10,7 @@ Consecutive hits of one condition merge into an episode per topic; a gap of up t
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from frontdiag.conditions import CONDITIONS
+from frontdiag.metrics import DEFAULT_FEATURE_BUDGET, keypoint_fill
 from frontdiag.verdicts.checks import CHECKS, RunOutcome, col
 from frontdiag.verdicts.loader import Ruleset
 from frontdiag.verdicts.model import SEVERITY_RANK, Rule
@@ -124,12 +125,22 @@ def _peak(values: np.ndarray, how: str) -> float:
     return float(np.median(v))
 
 
+# a normalised metric is reported with the raw count users recognise
+_COMPANIONS = {"keypoint_fill": ("n_keypoints", "min")}
+
+
 def peak_spec(rule: Rule) -> dict[str, str]:
     """Metric -> which extreme is worst, for the metrics a rule reads."""
     spec = {c.metric: ("absmax" if c.abs else _CLAUSE_PEAK.get(c.op, "median")) for c in rule.when}
     if rule.check is not None:
         spec.update(CHECKS[rule.check].peaks)
-    return spec
+    out: dict[str, str] = {}
+    for name, how in spec.items():
+        if name in _COMPANIONS:
+            companion, chow = _COMPANIONS[name]
+            out.setdefault(companion, chow)
+        out[name] = how
+    return out
 
 
 def _runs(hit: np.ndarray, max_gap: int) -> list[tuple[int, int]]:
@@ -239,10 +250,20 @@ def relative_time(table: pd.DataFrame) -> np.ndarray:
     return (t - np.nanmin(t)) / 1e9
 
 
+def derive_missing(table: pd.DataFrame, manifest: Mapping[str, Any] | None = None) -> None:
+    """Add derivable columns a table written by an older frontdiag lacks (in place)."""
+    if "keypoint_fill" not in table.columns and "n_keypoints" in table.columns:
+        params = ((manifest or {}).get("params") or {}).get("camera") or {}
+        budget = float(params.get("n_features") or DEFAULT_FEATURE_BUDGET)
+        table["keypoint_fill"] = keypoint_fill(col(table, "n_keypoints"), col(table, "width"),
+                                               col(table, "height"), budget)
+
+
 def evaluate(table: pd.DataFrame, ruleset: Ruleset) -> Verdicts:
     """Run every rule of the ruleset over the per-frame table."""
     out = table.drop(columns=[c for c in VERDICT_COLUMNS if c in table.columns]).copy()
     out = out.reset_index(drop=True)
+    derive_missing(out, table.attrs.get("manifest"))
     # pandas deep-copies attrs into every column it hands out: keep the (large) manifest
     # aside while the rules read columns, and put it back on the result
     out.attrs = {}
