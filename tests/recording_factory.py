@@ -93,3 +93,29 @@ def write_recording(path: Path, fmt: str, *, n: int = 6, encoding: str = "mono8"
             if extra is not None:
                 extra(w, i, log_t)
     return path
+
+
+def cut_recording(tmp: Path, fmt: str, name: str, *, n: int = 150,
+                  fraction: float = 0.6) -> Path:
+    """``n`` frames in ``fmt``, cut to ``fraction`` of their bytes like a recorder killed mid-write.
+
+    Returns ``tmp / ("cut_" + name)``. A ROS 2 bag folder keeps its metadata.yaml and has its
+    storage file cut; a ``name`` ending in ``.db3`` is the cut sqlite file on its own.
+    """
+    import shutil
+
+    (tmp / "full").mkdir(parents=True, exist_ok=True)
+    full = write_recording(tmp / "full" / ("bag" if name.endswith(".db3") else name), fmt, n=n)
+    cut = tmp / ("cut_" + name)
+    if full.is_dir():
+        (storage,) = [p for p in full.iterdir() if p.suffix in (".db3", ".mcap")]
+        if name.endswith(".db3"):
+            src, dest = storage, cut
+        else:
+            shutil.copytree(full, cut)
+            src = dest = cut / storage.name
+    else:
+        src, dest = full, cut
+    data = src.read_bytes()
+    dest.write_bytes(data[: int(len(data) * fraction)])
+    return cut

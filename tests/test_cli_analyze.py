@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from recording_factory import CONTAINERS, T0, frame, write_recording
+from recording_factory import CONTAINERS, T0, cut_recording, frame, write_recording
 
 import frontdiag
 from frontdiag.cli import main
@@ -104,15 +104,16 @@ def test_unknown_topic_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str]
     assert code == 2 and "/nope" in err
 
 
+@pytest.mark.parametrize("fmt,name", [("mcap", "run.mcap"), ("ros2-db3", "run_db3"),
+                                      ("ros2-db3", "run.db3")])
 def test_truncated_recording_keeps_frames_before_the_damage(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    full = write_recording(tmp_path / "full.mcap", "mcap", n=150)
-    cut = tmp_path / "cut.mcap"
-    cut.write_bytes(full.read_bytes()[: int(full.stat().st_size * 0.6)])
+        tmp_path: Path, fmt: str, name: str, capsys: pytest.CaptureFixture[str]) -> None:
+    cut = cut_recording(tmp_path, fmt, name, n=150)
     out = tmp_path / "res"
     code, _, err = run(["analyze", str(cut), "--out", str(out), "--quiet"], capsys)
     assert code == 2
-    assert "cut.mcap" in err and "damaged" in err
+    assert "cut_" + name in err and "damaged" in err
+    assert len(err.strip().splitlines()) <= 2  # the one-line error (and its hint)
     df = pd.read_parquet(out / "frames.parquet")
     assert 20 <= len(df) < 150
     assert json.loads((out / "manifest.json").read_text())["fault"]

@@ -8,7 +8,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-from recording_factory import CONTAINERS, DT, T0, K, frame, write_recording
+from recording_factory import CONTAINERS, DT, T0, K, cut_recording, frame, write_recording
 
 from frontdiag.api import AnalysisOptions, iter_camera_frames
 from frontdiag.errors import DecodeError, RecordingError, TopicError
@@ -200,20 +200,77 @@ def test_recording_is_not_modified(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("fmt,name", [("mcap", "t.mcap"), ("bag", "t.bag"),
-                                      ("mcap-ros1", "t1.mcap")])
+                                      ("mcap-ros1", "t1.mcap"),
+                                      ("ros2-db3", "t_db3"),  # bag folder with metadata.yaml
+                                      ("ros2-db3", "t.db3")])  # the sqlite file alone
 def test_truncated_recording_yields_messages_before_the_damage(tmp_path: Path, fmt: str,
                                                                name: str) -> None:
-    full = write_recording(tmp_path / name, fmt, n=150)
-    data = full.read_bytes()
-    cut = tmp_path / ("cut_" + name)
-    cut.write_bytes(data[: int(len(data) * 0.6)])
+    cut = cut_recording(tmp_path, fmt, name, n=150)
+    before = _snapshot(cut)
     with open_recording(cut) as rec:
         got = list(rec.messages(["/cam/image_raw"]))
         assert rec.fault is not None and "damaged after" in rec.fault.message
+        assert rec.fault.message.startswith(str(cut))
         assert 20 <= len(got) < 150
-        # the survivors decode to the frames that were written
+        # the survivors are the first frames written, in order, and decode to them
+        assert [m.log_ns for m in got] == [T0 + i * DT for i in range(len(got))]
         first = rec.deserialize(got[0])
         assert first.encoding == "mono8"
         last_index = len(got) - 1
         gray = np.asarray(rec.deserialize(got[last_index]).data).reshape(120, 160)
         np.testing.assert_array_equal(gray, frame(last_index))
+    # read-only: same bytes, and no -journal/-wal/-shm file beside the recording
+    assert _snapshot(cut) == before
+
+
+def _snapshot(path: Path) -> dict[str, str]:
+    import hashlib
+
+    folder = path if path.is_dir() else path.parent
+    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.iterdir()) if p.is_file()}
+
+
+def test_truncated_db3_recovers_the_rows_before_the_damage(tmp_path: Path) -> None:
+    """150 image + 150 camera_info rows cut at 60 %: every row before the missing pages."""
+    cut = cut_recording(tmp_path, "ros2-db3", "t.db3", n=150)
+    with open_recording(cut) as rec:
+        assert rec.backend == "db3-scan"
+        counts = {t.topic: t.count for t in rec.topics}
+        assert counts == {"/cam/image_raw": 89, "/cam/camera_info": 89}
+        assert rec.start_ns == T0 and rec.end_ns == T0 + 88 * DT
+        infos = list(rec.messages(["/cam/camera_info"], start_ns=T0 + 10 * DT,
+                                  end_ns=T0 + 20 * DT))
+        assert len(infos) == 11
+        np.testing.assert_allclose(np.asarray(rec.deserialize(infos[0]).k).reshape(3, 3), K)
+        assert len(list(rec.messages(["/cam/image_raw", "/cam/camera_info"]))) == 178
+        assert rec.fault is not None and rec.fault.after_messages == 178
+
+
+def test_db3_row_reader_matches_rosbags_on_an_intact_file(tmp_path: Path) -> None:
+    from frontdiag.io.db3_scan import ScannedDb3
+    from frontdiag.io.readers import RosbagsRecording
+
+    folder = write_recording(tmp_path / "bagdir", "ros2-db3", n=5)
+    db3 = next(folder.glob("*.db3"))
+    topics = ["/cam/image_raw", "/cam/camera_info"]
+    with RosbagsRecording(db3, [db3]) as a, ScannedDb3(db3, [db3]) as b:
+        assert b.fault is None
+        assert sorted(a.topics, key=lambda t: t.topic) == sorted(b.topics, key=lambda t: t.topic)
+        assert (a.start_ns, a.end_ns) == (b.start_ns, b.end_ns)
+        ma, mb = list(a.messages(topics)), list(b.messages(topics))
+        assert [(m.topic, m.log_ns, bytes(m.data)) for m in ma] == \
+            [(m.topic, m.log_ns, bytes(m.data)) for m in mb]
+        for x, y in zip(ma, mb, strict=True):
+            assert repr(a.deserialize(x)) == repr(b.deserialize(y))
+
+
+def test_db3_refused_for_another_reason_keeps_the_rosbags_error(tmp_path: Path) -> None:
+    """An intact sqlite file is never read around what rosbags objected to."""
+    folder = write_recording(tmp_path / "bagdir", "ros2-db3", n=3)
+    meta = folder / "metadata.yaml"
+    meta.write_text(meta.read_text().replace("compression_format: ''",
+                                             "compression_format: 'lz4'")
+                    .replace("compression_mode: ''", "compression_mode: 'MESSAGE'"))
+    with pytest.raises(RecordingError, match="cannot open recording"):
+        open_recording(folder)

@@ -3,7 +3,9 @@
 Two backends sit behind :func:`open_recording`:
 
 * ``rosbags`` (``AnyReader``): ROS 1 bags (a file, several files, or a folder of split bags),
-  ROS 2 bag folders with sqlite3 or MCAP storage, and standalone ``.db3`` files.
+  ROS 2 bag folders with sqlite3 or MCAP storage, and standalone ``.db3`` files. A ROS 1 bag
+  without index is read record by record (:mod:`frontdiag.io.bag_scan`), a truncated ``.db3``
+  row by row up to the damage (:mod:`frontdiag.io.db3_scan`).
 * ``mcap`` (the ``mcap`` package): standalone MCAP files in ROS 2 (``cdr``) or ROS 1 encoding,
   including files written outside ROS. It also reads MCAP files whose summary section is missing
   (a recorder that was killed), streaming records until the damage.
@@ -18,6 +20,7 @@ decoders see the same object shape whatever the container.
 from __future__ import annotations
 
 import logging
+import sqlite3
 from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -327,13 +330,46 @@ def _rosbags(path: Path, files: Sequence[Path]) -> Recording:
     try:
         return RosbagsRecording(path, files)
     except RecordingError:
-        if len(files) != 1 or files[0].suffix != ".bag":
-            raise
-    # An unindexed or truncated ROS 1 bag: read its records sequentially up to the damage.
-    from frontdiag.io.bag_scan import ScannedBag
+        if len(files) == 1 and files[0].suffix == ".bag":
+            # An unindexed or truncated ROS 1 bag: read its records sequentially up to the damage.
+            from frontdiag.io.bag_scan import ScannedBag
 
-    log.warning("%s: index missing or damaged; reading records sequentially", path)
-    return ScannedBag(files[0])
+            log.warning("%s: index missing or damaged; reading records sequentially", path)
+            return ScannedBag(files[0])
+        scanned = _scan_db3(path, files)
+        if scanned is None:
+            raise
+        log.warning("%s: sqlite file damaged or cut short; reading its rows directly", path)
+        return scanned
+
+
+def _scan_db3(path: Path, files: Sequence[Path]) -> Recording | None:
+    """A ROS 2 sqlite3 recording rosbags refused, read row by row -- only when it is damaged.
+
+    A file sqlite reads whole was refused for another reason (metadata, compression): that
+    error stands, rather than a reader that ignores what rosbags objected to.
+    """
+    from frontdiag.io.db3_scan import SQLITE_MAGIC, ScannedDb3, bag_files
+
+    try:
+        if len(files) == 1 and files[0].is_dir():
+            db3 = bag_files(files[0])
+        else:
+            db3 = [f for f in files if f.is_file() and f.suffix != ".bag"]
+        if not db3 or any(_magic(f, len(SQLITE_MAGIC)) != SQLITE_MAGIC for f in db3):
+            return None
+        rec = ScannedDb3(path, db3)
+    except (RecordingError, OSError, sqlite3.Error):
+        return None
+    if rec.fault is None:
+        rec.close()
+        return None
+    return rec
+
+
+def _magic(path: Path, n: int) -> bytes:
+    with open(path, "rb") as fh:
+        return fh.read(n)
 
 
 def _mcap(path: Path, files: Sequence[Path]) -> Recording:
