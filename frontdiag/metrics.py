@@ -88,6 +88,9 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
     _M("parallax_med_deg", "deg", "camera",
        "median parallax angle of inlier correspondences after de-rotation; 1 deg triangulation gate",
        "higher"),
+    _M("parallax_med_px", "px", "camera",
+       "parallax_med_deg as an image displacement, fx * tan(angle): H/E can tell a plane from 3D "
+       "structure only when this is well above the 2.45 px homography threshold", "higher"),
     _M("rot_deg", "deg", "camera", "rotation angle recovered against the reference keyframe"),
     _M("t_dir_change_deg", "deg", "camera",
        "change of the recovered translation direction since the previous frame (same reference)"),

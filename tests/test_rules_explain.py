@@ -112,3 +112,16 @@ def test_explain_ambiguous_frame_lists_topics(tmp_path, capsys) -> None:
     assert main(["explain", str(d), "--frame", "3"]) == 2
     assert "--topic /a or --topic /b" in capsys.readouterr().err
     assert main(["explain", str(d), "--frame", "3", "--topic", "/b"]) == 0
+
+
+@pytest.mark.parametrize(("px", "weak"), [(3.0, True), (12.0, False)])
+def test_explain_calls_a_planar_reading_weak_when_the_parallax_is_few_pixels(
+        tmp_path, capsys, px, weak) -> None:
+    d = tmp_path / "o"
+    d.mkdir()
+    plane = {"h_over_e": 0.95, "parallax_med_deg": 0.8, "parallax_med_px": px}
+    frames(30, {range(10, 20): plane}).to_parquet(d / "frames.parquet")
+    assert main(["explain", str(d), "--frame", "15"]) == 0
+    out = capsys.readouterr().out
+    assert "planar quadrant" in out
+    assert ("weak reading: the parallax is" in out) is weak

@@ -100,7 +100,7 @@ def _row_template() -> dict[str, Any]:
         "ref_frame": -1, "n_ref_matches": 0, "tracked_share": NAN,
         "inliers_e": NAN, "inliers_h": NAN, "h_over_e": NAN, "inlier_ratio": NAN,
         "ransac_iters_required": NAN, "ransac_iters_run": NAN, "parallax_med_deg": NAN,
-        "rot_deg": NAN, "t_dir_change_deg": NAN, "pose_info_cond": NAN,
+        "parallax_med_px": NAN, "rot_deg": NAN, "t_dir_change_deg": NAN, "pose_info_cond": NAN,
         "mean_intensity": NAN, "d_mean_intensity": NAN, "photo_residual_med": NAN,
         "affine_gain": NAN, "affine_bias": NAN, "photo_residual_affine_med": NAN,
         "keyframe_reason": "", "ms_detect": 0.0, "ms_match": 0.0, "ms_geometry": 0.0,
@@ -201,6 +201,9 @@ class CameraFrontend:
                                                                p.ransac_confidence),
                    ransac_iters_run=ransac_iters_run(tv.inlier_ratio, p.ransac_max_iters,
                                                      E_SAMPLE, p.ransac_confidence))
+        if tv.parallax_med_deg == tv.parallax_med_deg:
+            row["parallax_med_px"] = float(self._K[0, 0] * math.tan(math.radians(
+                tv.parallax_med_deg)))
         if not tv.ok_e:
             row["status"] = "essential_failed"
             return False

@@ -17,6 +17,8 @@ from typing import Any, Literal
 import numpy as np
 import pandas as pd
 
+from frontdiag.camera.geometry import homography_threshold_px
+
 Params = Mapping[str, Any]
 
 
@@ -256,18 +258,28 @@ def _keyframe_read(df: pd.DataFrame, p: Params) -> pd.DataFrame:
     `ref_frame` (or with read_at = "frame") are read on their own.
     """
     he, par = col(df, "h_over_e"), col(df, "parallax_med_deg")
+    par_px = col(df, "parallax_med_px")
     ref = col(df, "ref_frame")
-    out = pd.DataFrame({"kf_h_over_e": he, "kf_parallax_med_deg": par})
+    out = pd.DataFrame({"kf_h_over_e": he, "kf_parallax_med_deg": par,
+                        "kf_parallax_med_px": par_px})
     valid = ~np.isnan(he) & ~np.isnan(par) & (ref >= 0)
     if p.get("read_at", "frame") != "keyframe" or not valid.any():
         return out
     pos = np.flatnonzero(valid)
-    rows = pd.DataFrame({"ref": ref[pos], "par": par[pos], "he": he[pos]})
+    rows = pd.DataFrame({"ref": ref[pos], "par": par[pos], "he": he[pos], "px": par_px[pos]})
     upper = rows[rows["par"] >= rows.groupby("ref")["par"].transform("median")]
-    read = upper.groupby("ref")[["he", "par"]].median()
+    read = upper.groupby("ref")[["he", "par", "px"]].median()
     out.loc[pos, "kf_h_over_e"] = read["he"].reindex(ref[pos]).to_numpy()
     out.loc[pos, "kf_parallax_med_deg"] = read["par"].reindex(ref[pos]).to_numpy()
+    out.loc[pos, "kf_parallax_med_px"] = read["px"].reindex(ref[pos]).to_numpy()
     return out
+
+
+# H/E separates a plane from 3D structure only when points off the plane move off the
+# plane-induced homography by more than its RANSAC threshold (2.45 px at sigma = 1 px). A point
+# at depth Z moves off it by about parallax_px * |1 - Z_plane / Z|, about half the parallax
+# for a scene spanning 2:1 in depth: below twice the threshold the reading carries little.
+WEAK_HE_PARALLAX_PX = 2 * homography_threshold_px(1.0)
 
 
 def _he_parallax(df: pd.DataFrame, p: Params) -> np.ndarray:
@@ -304,6 +316,12 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
         q = int(_quadrant(np.array([he]), np.array([par]), p)[0])
     out += [f"degenerate > {p['he_degenerate']:g} (general 3D < 0.5); parallax split at "
             f"{p['parallax_split_deg']:g} deg (rotation < 0.1, plane 2-3)", _QUADRANT_WORDS[q]]
+    px = _v(row, "kf_parallax_med_px")
+    px = _v(row, "parallax_med_px") if np.isnan(px) else px
+    if q == 2 and px < WEAK_HE_PARALLAX_PX:
+        out.append(f"weak reading: the parallax is {px:.2g} px in the image, under "
+                   f"{WEAK_HE_PARALLAX_PX:.2g} px (twice the homography threshold), so a 3D "
+                   "scene also fits H nearly as well as E (low resolution or short baseline)")
     ent = float(np.fmin(_v(row, "entropy_norm"), _v(row, "entropy_inliers_norm")))
     if "min_entropy" in p and not ent >= p["min_entropy"]:
         out.append(f"not read: entropy (keypoints or inliers, the lower) {_fmt(ent)} < "
