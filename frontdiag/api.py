@@ -30,8 +30,11 @@ from frontdiag.io.readers import RawMessage, Recording, open_recording
 from frontdiag.io.topics import TopicChoice, choose_topics
 from frontdiag.metrics import CAMERA_COLUMNS, LIDAR_COLUMNS
 from frontdiag.records import CameraFrame, Intrinsics, LidarScan
+from frontdiag.timing import GapDetector
 
 log = logging.getLogger(__name__)
+
+GAP_STATUS = "after_gap"  # first row after a gap: the frontend started afresh (no reference)
 
 ProgressFn = Callable[[int, int | None], None]
 """progress(frames_done, frames_expected_or_None)."""
@@ -71,6 +74,7 @@ class TopicStats:
     non_monotonic_stamps: int = 0
     zero_stamps: int = 0
     last_t_ns: int | None = None
+    gaps: int = 0  # gaps in the recording after which the frontend started afresh
 
 
 @dataclass
@@ -182,6 +186,15 @@ class _SensorStream:
         self.index = -1
         self.in_window = 0
         self.window_start: int | None = None
+        self.gaps = GapDetector()
+
+    def restart_after_gap(self, t_ns: int, frontend: Any) -> bool:
+        """Reset ``frontend`` when ``t_ns`` follows a gap in the analysed stream."""
+        if not self.gaps.observe(t_ns):
+            return False
+        frontend.reset()
+        self.stats.gaps += 1
+        return True
 
     def admit(self, log_ns: int) -> bool:
         """Called for every message on the topic; True when it is selected for analysis.
@@ -362,7 +375,10 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
                     if frame is None:
                         _check_all_failed(cam_stream)
                         continue
+                    gap = cam_stream.restart_after_gap(frame.t_ns, cam_front)
                     row = _row(cam_front.process(frame), frame, "camera", rec_start)
+                    if gap:
+                        row["status"] = GAP_STATUS
                     rows.append(row)
                     cam_stream.stats.analysed += 1
                 elif raw.topic == choice.lidar and lid_stream and lid_front:
@@ -374,7 +390,11 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
                     if scan is None:
                         _check_all_failed(lid_stream)
                         continue
-                    rows.append(_row(lid_front.process(scan), scan, "lidar", rec_start))
+                    gap = lid_stream.restart_after_gap(scan.t_ns, lid_front)
+                    row = _row(lid_front.process(scan), scan, "lidar", rec_start)
+                    if gap:
+                        row["status"] = GAP_STATUS
+                    rows.append(row)
                     lid_stream.stats.analysed += 1
                 else:
                     continue
@@ -405,6 +425,9 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
             if st.skipped_undecodable:
                 notes.append(f"{stream.topic}: {st.skipped_undecodable} undecodable messages "
                              f"skipped (first: {st.first_error})")
+            if st.gaps:
+                notes.append(f"{stream.topic}: {st.gaps} gap(s) in the recording; the frontend "
+                             f"started afresh after each (rows with status {GAP_STATUS})")
         table = _table(rows)
         manifest = _manifest(path, rec, choice, intr, opts, cam_stream, lid_stream, notes,
                              fault, interrupted, time.perf_counter() - t_start)

@@ -262,3 +262,18 @@ def test_tracking_recovers_when_the_second_scan_matches_nothing() -> None:
     assert all(r["status"] == "ok" for r in rows[2:])
     err = inv(inv(truth[0]) @ truth[-1]) @ fe.pose
     assert np.linalg.norm(err[:3, 3]) < 0.05
+
+
+def test_reset_starts_a_new_map_in_the_new_place() -> None:
+    """After a gap the sensor may be elsewhere: the next scan starts a fresh map, and what
+    follows is measured against that place (a corridor reads degenerate, not the hall)."""
+    hall, _ = sequence("hall")
+    corridor, _ = sequence("corridor")
+    fe = LidarFrontend()
+    rows = [fe.process(s) for s in hall[:4]]
+    assert rows[0]["status"] == "first_scan" and rows[-1]["status"] == "ok"
+    fe.reset()
+    after = [fe.process(s) for s in corridor[4:]]
+    assert after[0]["status"] == "first_scan"
+    assert [r["status"] for r in after[1:]] == ["ok"] * 3
+    assert min(r["lidar_cond"] for r in after[1:]) > 900

@@ -88,6 +88,16 @@ class LidarFrontend:
         self._sse = 0.0
         self._n_dev = 0
 
+    def reset(self) -> None:
+        """Start a new local map with the next scan (after a gap in the recording): the motion
+        prior and the map of the place before the gap no longer apply. Odometry is kept."""
+        self._map = None
+        self._poses = []
+        self._last_kf = None
+        self._first_raw = None
+        self._sse = 0.0
+        self._n_dev = 0
+
     # -- motion prior ------------------------------------------------------------------------
     def add_odometry(self, t_ns: int, pose: np.ndarray) -> None:
         """A 4x4 odometry pose (e.g. nav_msgs/Odometry), used as the motion prior when it covers

@@ -98,6 +98,14 @@ def _T(R: np.ndarray, t: tuple[float, float, float] | np.ndarray) -> np.ndarray:
     return out
 
 
+CUT_PAUSE_S = 1.0
+"""A cut between parts (another area of the warehouse) is a pause of the recording: it stops in
+one place and resumes in the other this much later, as two recordings joined end to end do.
+Without it the sensors would teleport between two consecutive messages, which no recording
+can show; with it a frontend sees the gap (see frontdiag.timing.GapDetector) and starts
+afresh."""
+
+
 class Timeline:
     """Maps global time (s from the start) to part, segment and pose."""
 
@@ -116,6 +124,11 @@ class Timeline:
                 self.segs.append(s)
                 t += s.duration
         self.duration = t
+
+    def stamp_s(self, t: float) -> float:
+        """Recording time of scene time ``t``: each cut before ``t`` adds CUT_PAUSE_S."""
+        cuts = bisect.bisect_right(self.part_start, t) - 1  # part starts after the first
+        return t + CUT_PAUSE_S * max(cuts, 0)
 
     def seg_index(self, t: float) -> int:
         return max(0, min(len(self.segs) - 1, bisect.bisect_right(self.seg_start, t) - 1))
@@ -271,7 +284,7 @@ def simulate(scenario: str, out: Path | str, fmt: str = "mcap",
         ]
         wr.write("/tf_static", "tf2_msgs/msg/TFMessage", M.tf_msg(static), T0_NS)
         for t, kind, idx in events:
-            t_ns = T0_NS + round(t * 1e9)
+            t_ns = T0_NS + round(tl.stamp_s(t) * 1e9)
             part = tl.part_index(t)
             if kind == 0:
                 if part != ae_part:  # a new area: the exposure arrives converged on target
@@ -366,7 +379,7 @@ def simulate(scenario: str, out: Path | str, fmt: str = "mcap",
     labels = build_labels(cam_rows, lidar_rows)
     lp = labels_path_for(out)
     write_labels(lp, labels)
-    return SimResult(out, lp, n_frames, n_scans, tl.duration, labels, steps)
+    return SimResult(out, lp, n_frames, n_scans, tl.stamp_s(tl.duration), labels, steps)
 
 
 def _runs(rows: list[tuple[int, str | None]], cond: str) -> list[tuple[int, int]]:
