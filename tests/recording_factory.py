@@ -73,13 +73,14 @@ def encode(gray: np.ndarray, encoding: str) -> tuple[str, np.ndarray | bytes]:
 def write_recording(path: Path, fmt: str, *, n: int = 6, encoding: str = "mono8",
                     topic: str = "/cam/image_raw", with_info: bool = True, seed: int = 0,
                     extra: Callable[[RecordingWriter, int, int], None] | None = None,
-                    stamps: Iterable[int] | None = None) -> Path:
-    """Write ``n`` frames (and a CameraInfo per frame) to ``path`` in container ``fmt``."""
+                    stamps: Iterable[int] | None = None, shift: int = 1) -> Path:
+    """Write ``n`` frames (and a CameraInfo per frame) to ``path`` in container ``fmt``; the
+    scene slides ``shift`` pixels per frame."""
     stamp_list = list(stamps) if stamps is not None else [T0 + i * DT for i in range(n)]
     with RecordingWriter(path, fmt) as w:
         for i, t in enumerate(stamp_list):
             log_t = T0 + i * DT
-            kind, payload = encode(frame(i, seed), encoding)
+            kind, payload = encode(frame(i, seed, shift=shift), encoding)
             if kind == "raw":
                 w.write(topic, "sensor_msgs/msg/Image",
                         image_msg(np.asarray(payload), encoding, t), log_t)

@@ -280,7 +280,9 @@ def test_intrinsics_with_distortion_are_used(tmp_path: Path) -> None:
 
 def test_rules_fire_on_the_planar_feature_starved_fixture_and_gate(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    log = write_recording(tmp_path / "plane.mcap", "mcap", n=6)
+    # a picture sliding 4 px a frame: one homography explains every match (h_over_e ~ 1), as
+    # a pan or a plane would; at 1 px a frame there is too little image motion to call either
+    log = write_recording(tmp_path / "plane.mcap", "mcap", n=6, shift=4)
     out = tmp_path / "res"
     junit = tmp_path / "junit.xml"
     code, stdout, _ = run(["analyze", str(log), "--out", str(out), "--fail-on", "fail",
@@ -290,7 +292,7 @@ def test_rules_fire_on_the_planar_feature_starved_fixture_and_gate(
     df = pd.read_parquet(out / "frames.parquet")
     assert {"conditions", "rules", "verdict"} <= set(df.columns)
     fired = {c for conds in df["conditions"] for c in conds}
-    assert "planar_degeneracy" in fired  # a plane sliding sideways, h_over_e ~ 1
+    assert fired & {"planar_degeneracy", "pure_rotation"}
     assert (out / "episodes.parquet").exists()
     import xml.etree.ElementTree as ET
 

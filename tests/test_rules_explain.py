@@ -124,4 +124,4 @@ def test_explain_calls_a_planar_reading_weak_when_the_parallax_is_few_pixels(
     assert main(["explain", str(d), "--frame", "15"]) == 0
     out = capsys.readouterr().out
     assert "planar quadrant" in out
-    assert ("weak reading: the parallax is" in out) is weak
+    assert ("not read: the parallax is" in out) is weak

@@ -67,6 +67,8 @@ class Check:
     context: Callable[[pd.DataFrame, Params], pd.DataFrame] | None = None
     """Derived per-row values (from neighbours) that `explain` shows next to the row's own."""
     run: Callable[[pd.DataFrame, Params], RunOutcome] | None = None
+    optional: frozenset[str] = frozenset()
+    """Params a rule may leave out (the check then skips what they gate)."""
 
     def param_problem(self, name: str, value: Any) -> str | None:
         kind = self.params.get(name)
@@ -291,6 +293,10 @@ def _he_parallax(df: pd.DataFrame, p: Params) -> np.ndarray:
             # features crowded into a small cone are locally planar: a homography fits them
             # whatever the scene, so H/E only reads the scene when the features are spread
             hit &= constraint_entropy(df) >= p["min_entropy"]
+        if "min_parallax_px" in p:
+            # below it a 3D scene fits H nearly as well as E: the reading cannot tell (a table
+            # without parallax_med_px is read as before)
+            hit &= ~(read["kf_parallax_med_px"].to_numpy() < p["min_parallax_px"])
     return hit
 
 
@@ -318,10 +324,11 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
             f"{p['parallax_split_deg']:g} deg (rotation < 0.1, plane 2-3)", _QUADRANT_WORDS[q]]
     px = _v(row, "kf_parallax_med_px")
     px = _v(row, "parallax_med_px") if np.isnan(px) else px
-    if q == 2 and px < WEAK_HE_PARALLAX_PX:
-        out.append(f"weak reading: the parallax is {px:.2g} px in the image, under "
-                   f"{WEAK_HE_PARALLAX_PX:.2g} px (twice the homography threshold), so a 3D "
-                   "scene also fits H nearly as well as E (low resolution or short baseline)")
+    floor = float(p.get("min_parallax_px", WEAK_HE_PARALLAX_PX))
+    if q == 2 and px < floor:
+        out.append(f"not read: the parallax is {px:.2g} px in the image, under {floor:.2g} px "
+                   "(twice the homography threshold), so a 3D scene also fits H nearly as well "
+                   "as E (low resolution or short baseline)")
     ent = float(np.fmin(_v(row, "entropy_norm"), _v(row, "entropy_inliers_norm")))
     if "min_entropy" in p and not ent >= p["min_entropy"]:
         out.append(f"not read: entropy (keypoints or inliers, the lower) {_fmt(ent)} < "
@@ -482,14 +489,15 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
     Check("he_parallax_quadrant", "chapter 6: H/E inlier ratio x median parallax separates pure "
           "rotation, a planar scene, a nearly stationary camera and healthy motion",
           "frame", "camera", ("h_over_e", "parallax_med_deg", "ref_frame", "entropy_norm",
-                              "entropy_inliers_norm"),
+                              "entropy_inliers_norm", "parallax_med_px"),
           {"want": "choice:pure_rotation|planar_degeneracy", "he_degenerate": _NUM,
            "parallax_split_deg": _NUM, "read_at": "choice:keyframe|frame",
-           "min_entropy": _NUM},
+           "min_entropy": _NUM, "min_parallax_px": _NUM},
           {"h_over_e": "max", "parallax_med_deg": "min"},
           {"he_degenerate": "h_over_e", "parallax_split_deg": "parallax_med_deg",
-           "min_entropy": "entropy_norm"},
-          frame=_he_parallax, explain=_he_parallax_explain, context=_keyframe_read),
+           "min_entropy": "entropy_norm", "min_parallax_px": "parallax_med_px"},
+          frame=_he_parallax, explain=_he_parallax_explain, context=_keyframe_read,
+          optional=frozenset({"min_entropy", "min_parallax_px"})),
     Check("clustering", "chapter 1: low keypoint entropy with enough features, confirmed by the "
           "condition number of the pose information matrix",
           "frame", "camera", ("entropy_norm", "entropy_inliers_norm", "n_keypoints",

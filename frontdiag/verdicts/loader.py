@@ -125,7 +125,7 @@ def semantic_problems(rule: Rule) -> list[str]:
                            f"scope {rule.scope!r}")
             if chk.sensor != rule.sensor:
                 out.append(f"check {chk.name!r} reads {chk.sensor} rows, not {rule.sensor}")
-            missing = sorted(set(chk.params) - set(rule.params))
+            missing = sorted(set(chk.params) - set(rule.params) - chk.optional)
             if missing:
                 out.append(f"check {chk.name!r} needs params {missing}")
             for name, p in rule.params.items():
