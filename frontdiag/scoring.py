@@ -37,7 +37,8 @@ import numpy as np
 import pandas as pd
 
 from frontdiag.conditions import CONDITION_SENSORS, CONDITIONS, HEALTHY, LABELS
-from frontdiag.errors import ConfigError, RecordingError
+from frontdiag.errors import ConfigError
+from frontdiag.output import read_table
 
 LABEL_COLUMNS = ("t_start_ns", "t_end_ns", "condition")
 
@@ -167,24 +168,7 @@ def split_conditions(value: Any) -> tuple[str, ...]:
 
 def read_frames(path: Path | str) -> pd.DataFrame:
     """The per-frame table of an ``analyze --out`` directory (or a .parquet/.csv file)."""
-    p = Path(path)
-    if p.is_dir():
-        for name in ("frames.parquet", "frames.csv"):
-            if (p / name).is_file():
-                p = p / name
-                break
-        else:
-            raise RecordingError(p, "no frames.parquet or frames.csv in this directory",
-                                 hint="pass the directory written by `frontdiag analyze --out`")
-    if not p.is_file():
-        raise RecordingError(p, "not found")
-    if p.suffix == ".parquet":
-        df = pd.read_parquet(p)
-    elif p.suffix == ".csv":
-        df = pd.read_csv(p, keep_default_na=False, na_values=[""])
-    else:
-        raise RecordingError(p, "expected frames.parquet or frames.csv")
-    return normalise_frames(df, source=str(p))
+    return normalise_frames(read_table(Path(path)), source=str(path))
 
 
 def normalise_frames(df: pd.DataFrame, source: str = "frames") -> pd.DataFrame:
