@@ -309,3 +309,35 @@ def test_bad_rules_dir_is_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[s
     (bad / "x.toml").write_text('[[rule]]\nid = "X-1"\ncondition = "no_such_condition"\n')
     code, _, err = run(["analyze", str(log), "--rules", str(bad)], capsys)
     assert code == 2 and "x.toml" in err
+
+
+def test_a_production_budget_shows_ransac_starvation(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The lesson's experiment (ch7): no ratio test, no mutual check, a 40-iteration budget.
+    The inlier ratio halves and the iterations it requires exceed the budget: FD-RAN-001."""
+    log = Path(__file__).resolve().parents[1] / "sample_logs" / "healthy_loop.mcap"
+    res = {}
+    for name, extra in (("default", []),
+                        ("budget", ["--ratio", "1.0", "--no-mutual", "--ransac-iters", "40"])):
+        out = tmp_path / name
+        run(["analyze", str(log), "--no-lidar", "-q", "--fail-on", "never", "--out", str(out),
+             *extra], capsys)
+        res[name] = pd.read_parquet(out / "frames.parquet")
+    ok, starved = res["default"], res["budget"]
+    assert not any("ransac_starved" in c for c in ok["conditions"])
+    assert starved["inlier_ratio"].median() < 0.7 * ok["inlier_ratio"].median()
+    assert (starved["ransac_iters_run"].dropna() <= 40).all()
+    hit = starved["conditions"].map(lambda c: "ransac_starved" in c)
+    assert hit.mean() > 0.5
+    assert (starved.loc[hit, "ransac_iters_required"] > 40).all()
+    assert json.loads((tmp_path / "budget" / "manifest.json").read_text())[
+        "params"]["camera"]["ransac_max_iters"] == 40
+
+
+@pytest.mark.parametrize(("flag", "value"), [("--ratio", "1.5"), ("--ratio", "0"),
+                                             ("--ransac-iters", "0")])
+def test_bad_frontend_settings_are_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[str],
+                                          flag: str, value: str) -> None:
+    log = write_recording(tmp_path / "r.mcap", "mcap", n=2)
+    code, _, err = run(["analyze", str(log), flag, value], capsys)
+    assert code == 2 and flag in err

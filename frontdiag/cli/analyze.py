@@ -31,6 +31,8 @@ Examples:
 
   frontdiag analyze run.mcap --out new/ --baseline old/     # fail on regressions vs old run
 
+  frontdiag analyze run.mcap --ratio 1.0 --no-mutual --ransac-iters 40  # your frontend's budget
+
 Exit codes: 0 nothing at or above --fail-on, 1 a gate failed, 2 bad input / usage / config,
 3 internal error, 130 interrupted.
 """
@@ -66,6 +68,14 @@ def analyze_cmd(
                                           help="Analyse at most N frames per sensor."),
     stride: int = typer.Option(1, "--stride", help="Analyse every N-th message."),
     features: int = typer.Option(1000, "--features", help="ORB features per frame."),
+    ratio: float = typer.Option(0.8, "--ratio",
+                                help="Lowe ratio threshold (0-1]; 1.0 keeps every unambiguous "
+                                     "nearest neighbour. Match your frontend's setting."),
+    no_mutual: bool = typer.Option(False, "--no-mutual",
+                                   help="Skip the mutual-consistency check in matching."),
+    ransac_iters: int = typer.Option(1000, "--ransac-iters",
+                                     help="RANSAC iteration cap for E and H; set your frontend's "
+                                          "budget to see where it starves (FD-RAN-001)."),
     lidar_backend: str = typer.Option("auto", "--lidar-backend",
                                       help="LiDAR registration: auto (small_gicp), small_gicp, "
                                            "or open3d (needs frontdiag[open3d])."),
@@ -106,12 +116,17 @@ def analyze_cmd(
         raise ConfigError(f"--format {fmt!r}: choose parquet or csv")
     if features < 50:
         raise ConfigError(f"--features {features}: need at least 50")
+    if not 0.0 < ratio <= 1.0:
+        raise ConfigError(f"--ratio {ratio:g}: choose a value in (0, 1]")
+    if ransac_iters < 1:
+        raise ConfigError(f"--ransac-iters {ransac_iters}: need at least 1")
     out_dir = prepare_out_dir(out, [log]) if out is not None else None
     opts = AnalysisOptions(
         camera_topic=camera_topic, lidar_topic=lidar_topic, odom_topic=odom_topic,
         use_camera=not no_camera, use_lidar=not no_lidar, intrinsics=intrinsics,
         camera_info_file=str(camera_info) if camera_info else None, start_s=start, end_s=end,
-        max_frames=max_frames, stride=stride, camera_params=CameraParams(n_features=features),
+        max_frames=max_frames, stride=stride, camera_params=CameraParams(
+            n_features=features, ratio=ratio, mutual=not no_mutual, ransac_max_iters=ransac_iters),
         lidar_params=LidarParams(backend=lidar_backend),
         rules=not no_rules, rules_dir=str(rules_dir) if rules_dir else None,
         rules_overrides=str(overrides) if overrides else None, select=_split(select),
