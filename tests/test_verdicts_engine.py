@@ -263,6 +263,20 @@ def test_missing_columns_read_as_not_computable(ruleset) -> None:
     assert conds(evaluate(t, ruleset), 3) == ["detection_failure"]
 
 
+def test_keypoint_fill_is_derived_for_tables_written_without_it(ruleset) -> None:
+    """Older tables: the floor is prorated by the image area and the manifest's budget."""
+    t = frames(10).drop(columns=["keypoint_fill"])
+    t[["width", "height"]] = (320, 240)                       # 1/12 of 1280x720
+    t.loc[3, "n_keypoints"] = 200                            # a clustered small view: fine
+    t.loc[5, "n_keypoints"] = 20                             # 20 of an expected 83: failed
+    out = evaluate(t, ruleset).table
+    assert out.loc[3, "keypoint_fill"] == pytest.approx(200 / (1000 / 12))
+    assert conds(evaluate(t, ruleset), 3) == [] and conds(evaluate(t, ruleset), 5) == [
+        "detection_failure"]
+    t.attrs["manifest"] = {"params": {"camera": {"n_features": 2000}}}
+    assert evaluate(t, ruleset).table.loc[3, "keypoint_fill"] == pytest.approx(200 / (2000 / 12))
+
+
 # --- run-level correlation ----------------------------------------------------------------------
 
 def test_pose_increment_correlates_with_exposure_steps(ruleset) -> None:
