@@ -341,3 +341,15 @@ def test_bad_frontend_settings_are_exit_2(tmp_path: Path, capsys: pytest.Capture
     log = write_recording(tmp_path / "r.mcap", "mcap", n=2)
     code, _, err = run(["analyze", str(log), flag, value], capsys)
     assert code == 2 and flag in err
+
+
+def test_a_camera_standing_still_passes_the_gate(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Identical frames: H/E = 1 at zero parallax, but nothing turned either (lesson ch6: a
+    stationary robot inserts no keyframes and stays safe), so no pure_rotation failure."""
+    log = write_recording(tmp_path / "still.mcap", "mcap", n=30, shift=0)
+    out = tmp_path / "res"
+    code, _, _ = run(["analyze", str(log), "-q", "--out", str(out)], capsys)
+    df = pd.read_parquet(out / "frames.parquet")
+    assert (df["h_over_e"].dropna() > 0.9).all() and (df["parallax_med_deg"].dropna() < 0.1).all()
+    assert code == 0 and not any(len(c) for c in df["conditions"])

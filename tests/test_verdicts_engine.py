@@ -169,6 +169,15 @@ def test_he_parallax_quadrants(ruleset, he, parallax, expected) -> None:
     assert got == ([expected] if expected else [])
 
 
+@pytest.mark.parametrize(("rot", "expected"), [(3.0, ["pure_rotation"]), (0.05, [])])
+def test_a_camera_standing_still_is_not_pure_rotation(ruleset, rot, expected) -> None:
+    """H/E ~1 and no parallax in both cases; only the panning camera turned (lesson ch6: a
+    stationary robot inserts no keyframes and stays safe)."""
+    still = {"h_over_e": 0.98, "parallax_med_deg": 0.02, "rot_deg": rot}
+    res = evaluate(frames(20, {range(5, 15): still}), ruleset)
+    assert conds(res, 10) == expected
+
+
 def _keyframe_intervals(he_first: float, he_last: float, n: int = 40) -> pd.DataFrame:
     """Intervals of 4 frames per reference keyframe, parallax growing 0.5 -> 1.4 deg in each."""
     changes = {}

@@ -256,24 +256,27 @@ def _keyframe_read(df: pd.DataFrame, p: Params) -> pd.DataFrame:
     homography within the RANSAC threshold, so every frame just after a keyframe change reads
     H/E ~ 0.95. Degeneracy is a property of the scene between two keyframes, so each row takes
     the medians of H/E and parallax over the upper half (by parallax) of the rows sharing its
-    reference; the median keeps one noisy frame from deciding the interval. Rows without a
-    `ref_frame` (or with read_at = "frame") are read on their own.
+    reference; the median keeps one noisy frame from deciding the interval. The rotation read is
+    the largest the reference saw (a pan grows from zero at each keyframe change). Rows without
+    a `ref_frame` (or with read_at = "frame") are read on their own.
     """
     he, par = col(df, "h_over_e"), col(df, "parallax_med_deg")
-    par_px = col(df, "parallax_med_px")
+    par_px, rot = col(df, "parallax_med_px"), col(df, "rot_deg")
     ref = col(df, "ref_frame")
     out = pd.DataFrame({"kf_h_over_e": he, "kf_parallax_med_deg": par,
-                        "kf_parallax_med_px": par_px})
+                        "kf_parallax_med_px": par_px, "kf_rot_deg": rot})
     valid = ~np.isnan(he) & ~np.isnan(par) & (ref >= 0)
     if p.get("read_at", "frame") != "keyframe" or not valid.any():
         return out
     pos = np.flatnonzero(valid)
-    rows = pd.DataFrame({"ref": ref[pos], "par": par[pos], "he": he[pos], "px": par_px[pos]})
+    rows = pd.DataFrame({"ref": ref[pos], "par": par[pos], "he": he[pos], "px": par_px[pos],
+                         "rot": rot[pos]})
     upper = rows[rows["par"] >= rows.groupby("ref")["par"].transform("median")]
     read = upper.groupby("ref")[["he", "par", "px"]].median()
     out.loc[pos, "kf_h_over_e"] = read["he"].reindex(ref[pos]).to_numpy()
     out.loc[pos, "kf_parallax_med_deg"] = read["par"].reindex(ref[pos]).to_numpy()
     out.loc[pos, "kf_parallax_med_px"] = read["px"].reindex(ref[pos]).to_numpy()
+    out.loc[pos, "kf_rot_deg"] = rows.groupby("ref")["rot"].max().reindex(ref[pos]).to_numpy()
     return out
 
 
@@ -293,6 +296,10 @@ def _he_parallax(df: pd.DataFrame, p: Params) -> np.ndarray:
             # features crowded into a small cone are locally planar: a homography fits them
             # whatever the scene, so H/E only reads the scene when the features are spread
             hit &= constraint_entropy(df) >= p["min_entropy"]
+        if "min_rotation_deg" in p:
+            # no rotation either: a robot standing still, which accumulates no baseline and
+            # stays safe (lesson, ch6); the failure is the parked camera that pans
+            hit &= ~(read["kf_rot_deg"].to_numpy() < p["min_rotation_deg"])
         if "min_parallax_px" in p:
             # below it a 3D scene fits H nearly as well as E: the reading cannot tell (a table
             # without parallax_med_px is read as before)
@@ -334,6 +341,12 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
         out.append(f"not read: entropy (keypoints or inliers, the lower) {_fmt(ent)} < "
                    f"{p['min_entropy']:g}, clustered features fit a homography whatever the "
                    "scene (feature_clustering look-alike)")
+    rot = _v(row, "kf_rot_deg")
+    rot = _v(row, "rot_deg") if np.isnan(rot) else rot
+    if q == 3 and "min_rotation_deg" in p and rot < p["min_rotation_deg"]:
+        out.append(f"not read as pure rotation: rotation {rot:.2g} deg < "
+                   f"{p['min_rotation_deg']:g}, the camera is standing still (no baseline, "
+                   "no keyframes: safe)")
     if q == 3:
         out.append(f"planar_degeneracy ruled out by parallax {par:.3g} deg < "
                    f"{p['parallax_split_deg']:g}")
@@ -489,15 +502,16 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
     Check("he_parallax_quadrant", "chapter 6: H/E inlier ratio x median parallax separates pure "
           "rotation, a planar scene, a nearly stationary camera and healthy motion",
           "frame", "camera", ("h_over_e", "parallax_med_deg", "ref_frame", "entropy_norm",
-                              "entropy_inliers_norm", "parallax_med_px"),
+                              "entropy_inliers_norm", "parallax_med_px", "rot_deg"),
           {"want": "choice:pure_rotation|planar_degeneracy", "he_degenerate": _NUM,
            "parallax_split_deg": _NUM, "read_at": "choice:keyframe|frame",
-           "min_entropy": _NUM, "min_parallax_px": _NUM},
+           "min_entropy": _NUM, "min_parallax_px": _NUM, "min_rotation_deg": _NUM},
           {"h_over_e": "max", "parallax_med_deg": "min"},
           {"he_degenerate": "h_over_e", "parallax_split_deg": "parallax_med_deg",
-           "min_entropy": "entropy_norm", "min_parallax_px": "parallax_med_px"},
+           "min_entropy": "entropy_norm", "min_parallax_px": "parallax_med_px",
+           "min_rotation_deg": "rot_deg"},
           frame=_he_parallax, explain=_he_parallax_explain, context=_keyframe_read,
-          optional=frozenset({"min_entropy", "min_parallax_px"})),
+          optional=frozenset({"min_entropy", "min_parallax_px", "min_rotation_deg"})),
     Check("clustering", "chapter 1: low keypoint entropy with enough features, confirmed by the "
           "condition number of the pose information matrix",
           "frame", "camera", ("entropy_norm", "entropy_inliers_norm", "n_keypoints",
