@@ -188,13 +188,18 @@ class _SensorStream:
         self.window_start: int | None = None
         self.gaps = GapDetector()
 
-    def restart_after_gap(self, t_ns: int, frontend: Any) -> bool:
-        """Reset ``frontend`` when ``t_ns`` follows a gap in the analysed stream."""
-        if not self.gaps.observe(t_ns):
-            return False
-        frontend.reset()
-        self.stats.gaps += 1
-        return True
+    def analyse(self, record: CameraFrame | LidarScan, frontend: Any, sensor: str,
+                rec_start: int) -> dict[str, Any]:
+        """One table row for a decoded record; the frontend starts afresh after a gap."""
+        gap = self.gaps.observe(record.t_ns)
+        if gap:
+            frontend.reset()
+            self.stats.gaps += 1
+        row = _row(frontend.process(record), record, sensor, rec_start)
+        if gap:
+            row["status"] = GAP_STATUS
+        self.stats.analysed += 1
+        return row
 
     def admit(self, log_ns: int) -> bool:
         """Called for every message on the topic; True when it is selected for analysis.
@@ -375,12 +380,7 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
                     if frame is None:
                         _check_all_failed(cam_stream)
                         continue
-                    gap = cam_stream.restart_after_gap(frame.t_ns, cam_front)
-                    row = _row(cam_front.process(frame), frame, "camera", rec_start)
-                    if gap:
-                        row["status"] = GAP_STATUS
-                    rows.append(row)
-                    cam_stream.stats.analysed += 1
+                    rows.append(cam_stream.analyse(frame, cam_front, "camera", rec_start))
                 elif raw.topic == choice.lidar and lid_stream and lid_front:
                     if lid_stream.full and (cam_stream is None or cam_stream.full):
                         break
@@ -390,12 +390,7 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
                     if scan is None:
                         _check_all_failed(lid_stream)
                         continue
-                    gap = lid_stream.restart_after_gap(scan.t_ns, lid_front)
-                    row = _row(lid_front.process(scan), scan, "lidar", rec_start)
-                    if gap:
-                        row["status"] = GAP_STATUS
-                    rows.append(row)
-                    lid_stream.stats.analysed += 1
+                    rows.append(lid_stream.analyse(scan, lid_front, "lidar", rec_start))
                 else:
                     continue
                 done += 1
