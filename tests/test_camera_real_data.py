@@ -72,3 +72,29 @@ def test_tum_sequence_runs_and_tracks_brightness() -> None:
     for r, m0, m1 in zip(rows[1:], means, means[1:], strict=False):
         assert r["d_mean_intensity"] == pytest.approx(m1 - m0, abs=1e-3)
         assert r["status"] in {"ok", "too_few_matches"}
+
+
+@pytest.mark.skipif(not TUM.is_dir(), reason="../shared/data/tum_fr3_long_office_17f absent")
+def test_tum_at_one_hertz_is_not_read_as_repetitive_structure() -> None:
+    # The 17 frames are ~1 s apart (timestamps in the file names): an office seen from 4-12 deg
+    # apart rejects 70-85% of ratio tests from viewpoint change alone, which the chapter 2 table
+    # must not read as repetition.
+    import pandas as pd
+
+    from frontdiag.verdicts import evaluate, load_ruleset
+    from frontdiag.verdicts.engine import derive_missing
+
+    K = np.array([[535.4, 0, 320.1], [0, 539.2, 247.6], [0, 0, 1]])
+    fe = CameraFrontend(CameraParams(), Intrinsics(K=K))
+    rows = []
+    for i, p in enumerate(sorted((TUM / "rgb").glob("*.png"))):
+        t_ns = round(float(p.stem) * 1e9)
+        row = fe.process(CameraFrame(i, t_ns, t_ns, "/tum", _gray(p), "mono8"))
+        row.update(frame=i, t_ns=t_ns, sensor="camera", topic="/tum", width=640, height=480)
+        rows.append(row)
+    table = pd.DataFrame(rows)
+    table["t_rel_s"] = (table["t_ns"] - table["t_ns"].iloc[0]) / 1e9
+    derive_missing(table)
+    assert (table["ratio_reject_rate"] >= 0.70).sum() >= 5  # the rule's line is crossed
+    res = evaluate(table, load_ruleset())
+    assert not any("repetitive_structure" in c for c in res.table["conditions"])

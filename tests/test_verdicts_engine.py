@@ -103,6 +103,15 @@ def test_chapter2_table_repetitive_vs_detection_vs_exposure(ruleset) -> None:
     assert all(not conds(res, f) for f in (20, 45, 50))
 
 
+@pytest.mark.parametrize(("rate_hz", "expected"), [(30.0, True), (3.0, True), (1.0, False)])
+def test_repetition_is_read_between_frames_of_a_tracking_rate(ruleset, rate_hz, expected) -> None:
+    # ~85% rejection at unchanged feature count: repetition at 30 Hz and at the 3 Hz of a
+    # relocalisation path; frames 1 s apart reject that much from viewpoint change alone
+    t = frames(20, {range(5, 15): {"ratio_reject_rate": 0.85}}, rate_hz=rate_hz)
+    res = evaluate(t, ruleset)
+    assert all(("repetitive_structure" in conds(res, f)) == expected for f in range(7, 15))
+
+
 def test_exposure_window_keeps_a_rejection_spike_from_reading_as_repetition(ruleset) -> None:
     # the rejection spike of the 2-3 frames after an exposure step is the step's
     t = frames(30, {10: {"d_mean_intensity": -20.0, "photo_residual_med": 21.0,

@@ -95,12 +95,31 @@ def _after_step(dmean: np.ndarray, step: float, frames: int) -> np.ndarray:
     return out
 
 
+def frame_interval_s(df: pd.DataFrame) -> np.ndarray:
+    """Seconds since the previous row of the same topic (NaN on the first): the baseline in time
+    the frame was matched across (``--stride``, a low-rate recording and dropped frames widen it)."""
+    t = col(df, "t_ns")
+    return np.concatenate([[np.nan], np.diff(t) / 1e9]) if len(t) else t
+
+
+def _wide_interval(df: pd.DataFrame, p: Params) -> np.ndarray:
+    if "max_interval_s" not in p:
+        return np.zeros(len(df), dtype=bool)
+    with np.errstate(invalid="ignore"):
+        return frame_interval_s(df) > p["max_interval_s"]
+
+
 def _matching_table(df: pd.DataFrame, p: Params) -> np.ndarray:
     fill = col(df, "keypoint_fill")
     rej = col(df, "ratio_reject_rate")
     with np.errstate(invalid="ignore"):
         near_step = _after_step(col(df, "d_mean_intensity"), p["dmean_step"], p["recovery_frames"])
-        return (fill >= p["fill_floor"]) & (rej >= p["reject_repetitive"]) & ~near_step
+        return ((fill >= p["fill_floor"]) & (rej >= p["reject_repetitive"]) & ~near_step
+                & ~_wide_interval(df, p))
+
+
+def _matching_context(df: pd.DataFrame, p: Params) -> pd.DataFrame:
+    return pd.DataFrame({"frame_interval_s": frame_interval_s(df)})
 
 
 def _fill_words(kp: float, fill: float) -> str:
@@ -130,6 +149,11 @@ def _matching_table_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     if not np.isnan(dm) and abs(dm) > p["dmean_step"]:
         out.append(f"|d_mean_intensity| {abs(dm):.1f} > {p['dmean_step']:g}: an exposure step; "
                    f"a rejection spike within {p['recovery_frames']:g} frames is the step's")
+    gap = _v(row, "frame_interval_s")
+    if "max_interval_s" in p and not np.isnan(gap) and gap > p["max_interval_s"]:
+        out.append(f"matched across {gap:.3g} s > {p['max_interval_s']:g} s (slower than "
+                   "3 Hz): wide-baseline pairs reject more from viewpoint change alone, so "
+                   "the chapter 2 table is not read here")
     return out
 
 
@@ -484,11 +508,12 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
           "2-3 frames after an exposure step (~55%, recovering)", "frame", "camera",
           ("n_keypoints", "keypoint_fill", "ratio_reject_rate", "d_mean_intensity"),
           {"fill_floor": _NUM, "reject_repetitive": _NUM, "dmean_step": _NUM,
-           "recovery_frames": _NUM},
+           "recovery_frames": _NUM, "max_interval_s": _NUM},
           {"n_keypoints": "min", "ratio_reject_rate": "max"},
           {"fill_floor": "keypoint_fill", "reject_repetitive": "ratio_reject_rate",
            "dmean_step": "d_mean_intensity"},
-          frame=_matching_table, explain=_matching_table_explain),
+          frame=_matching_table, explain=_matching_table_explain, context=_matching_context,
+          optional=frozenset({"max_interval_s"})),
     Check("exposure_step", "chapter 4: a jump of mean intensity with the photometric residual "
           "jumping with it, clean before and clean again within 2-3 frames",
           "frame", "camera",
