@@ -432,6 +432,8 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
         from frontdiag.verdicts import evaluate
 
         verdicts = evaluate(table, ruleset)
+        notes.extend(verdicts.notes)
+        manifest["notes"] = list(notes)
         table = verdicts.table
         table.attrs["manifest"] = manifest
     return Analysis(table=table, manifest=manifest, choice=choice, intrinsics=intr, notes=notes,

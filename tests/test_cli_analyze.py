@@ -353,3 +353,23 @@ def test_a_camera_standing_still_passes_the_gate(
     df = pd.read_parquet(out / "frames.parquet")
     assert (df["h_over_e"].dropna() > 0.9).all() and (df["parallax_med_deg"].dropna() < 0.1).all()
     assert code == 0 and not any(len(c) for c in df["conditions"])
+
+
+def test_stride_past_a_tracking_rate_is_named_not_read_as_repetition(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The repetitive sample log (10 Hz) is found at its own rate. At --stride 6 the frames are
+    0.6 s apart (their rejection reads 83-85 %, from baseline as much as from repetition):
+    FD-REP-001 does not read those rows and says so in a note."""
+    log = Path(__file__).resolve().parents[1] / "sample_logs" / "repetitive_aisle"
+    seen = {}
+    for stride in ("1", "6"):
+        code, stdout, _ = run(["analyze", str(log), "--no-lidar", "--json", "--stride", stride],
+                              capsys)
+        assert code == 0
+        seen[stride] = json.loads(stdout)
+    full, wide = seen["1"], seen["6"]
+    share = {s: d["verdicts"]["conditions"].get("repetitive_structure", {}).get("frames", 0)
+             for s, d in seen.items()}
+    assert share["1"] > 10 and share["6"] == 0
+    assert not any("FD-REP-001" in n for n in full["notes"])
+    assert any("FD-REP-001" in n and "0.34 s" in n for n in wide["notes"])

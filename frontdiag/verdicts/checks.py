@@ -69,6 +69,8 @@ class Check:
     run: Callable[[pd.DataFrame, Params], RunOutcome] | None = None
     optional: frozenset[str] = frozenset()
     """Params a rule may leave out (the check then skips what they gate)."""
+    unread: Callable[[pd.DataFrame, Params], tuple[np.ndarray, str]] | None = None
+    """Rows the check declines to read whatever their values, and why (for a run note)."""
 
     def param_problem(self, name: str, value: Any) -> str | None:
         kind = self.params.get(name)
@@ -116,6 +118,13 @@ def _matching_table(df: pd.DataFrame, p: Params) -> np.ndarray:
         near_step = _after_step(col(df, "d_mean_intensity"), p["dmean_step"], p["recovery_frames"])
         return ((fill >= p["fill_floor"]) & (rej >= p["reject_repetitive"]) & ~near_step
                 & ~_wide_interval(df, p))
+
+
+def _matching_unread(df: pd.DataFrame, p: Params) -> tuple[np.ndarray, str]:
+    return _wide_interval(df, p), (
+        f"matched across more than {p.get('max_interval_s', np.nan):g} s (slower than 3 Hz: "
+        "--stride, a low-rate recording or dropped frames); read repetition at the "
+        "recording's own rate")
 
 
 def _matching_context(df: pd.DataFrame, p: Params) -> pd.DataFrame:
@@ -513,7 +522,7 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
           {"fill_floor": "keypoint_fill", "reject_repetitive": "ratio_reject_rate",
            "dmean_step": "d_mean_intensity"},
           frame=_matching_table, explain=_matching_table_explain, context=_matching_context,
-          optional=frozenset({"max_interval_s"})),
+          optional=frozenset({"max_interval_s"}), unread=_matching_unread),
     Check("exposure_step", "chapter 4: a jump of mean intensity with the photometric residual "
           "jumping with it, clean before and clean again within 2-3 frames",
           "frame", "camera",

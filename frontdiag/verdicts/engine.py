@@ -51,6 +51,8 @@ class Verdicts:
     ruleset: Ruleset
     hits: dict[str, np.ndarray]
     """Rule ID -> boolean per table row, after persistence."""
+    notes: list[str] = field(default_factory=list)
+    """Rows a rule's check declined to read, and why (one line per rule)."""
 
     def rule_frames(self, rule_id: str) -> int:
         return int(self.hits[rule_id].sum()) if rule_id in self.hits else 0
@@ -96,6 +98,22 @@ def rule_mask(rule: Rule, rows: pd.DataFrame) -> np.ndarray:
         params = {k: p.value for k, p in rule.params.items()}
         combined = combined & np.asarray(chk.frame(rows, params), dtype=bool)
     return combined
+
+
+def _unread_notes(table: pd.DataFrame, rules: tuple[Rule, ...]) -> list[str]:
+    notes = []
+    for rule in rules:
+        chk = CHECKS.get(rule.check or "")
+        if chk is None or chk.unread is None:
+            continue
+        params = {k: p.value for k, p in rule.params.items()}
+        n, why = 0, ""
+        for _topic, pos in topic_groups(table, rule.sensor):
+            mask, why = chk.unread(table.iloc[pos], params)
+            n += int(np.count_nonzero(mask))
+        if n:
+            notes.append(f"{rule.id} ({rule.condition}) did not read {n} row(s): {why}")
+    return notes
 
 
 def _frame_hits(table: pd.DataFrame, rules: tuple[Rule, ...]) -> dict[str, np.ndarray]:
@@ -292,5 +310,6 @@ def evaluate(table: pd.DataFrame, ruleset: Ruleset) -> Verdicts:
                                    outcome.value, outcome.message, outcome.frames))
     episodes = _episodes(out, ruleset.frame_rules, hits, relative_time(out),
                          ruleset.run.episodes.max_gap_frames)
+    notes = _unread_notes(out, ruleset.frame_rules)
     out.attrs = dict(table.attrs)
-    return Verdicts(out, episodes, findings, ruleset, hits)
+    return Verdicts(out, episodes, findings, ruleset, hits, notes)
