@@ -98,3 +98,47 @@ def test_tum_at_one_hertz_is_not_read_as_repetitive_structure() -> None:
     assert (table["ratio_reject_rate"] >= 0.70).sum() >= 5  # the rule's line is crossed
     res = evaluate(table, load_ruleset())
     assert not any("repetitive_structure" in c for c in res.table["conditions"])
+
+
+EUROC = DATA / "euroc_lk_pair_slambook"
+
+
+def _crop(img: np.ndarray, w: int = 640, h: int = 370) -> np.ndarray:
+    y0, x0 = (img.shape[0] - h) // 2, (img.shape[1] - w) // 2
+    return np.ascontiguousarray(img[y0:y0 + h, x0:x0 + w])
+
+
+def _pair_row(a: np.ndarray, b: np.ndarray) -> dict:
+    K = np.array([[500.0, 0, 320], [0, 500.0, 185], [0, 0, 1]])
+    fe = CameraFrontend(CameraParams(), Intrinsics(K=K))
+    fe.process(CameraFrame(0, 0, 0, "/cam", a, "mono8"))
+    return fe.process(CameraFrame(1, 33_000_000, 33_000_000, "/cam", b, "mono8"))
+
+
+@pytest.mark.skipif(not (KITTI.is_dir() and TUM.is_dir() and EUROC.is_dir()),
+                    reason="../shared/data absent")
+def test_the_affine_model_removes_a_gain_step_but_not_a_scene_cut() -> None:
+    """The value FD-EXP-001 reads when a step also crosses the rejection line: after the affine
+    brightness model, a gain step on real frames falls below the rule's residual_affine_max and
+    unrelated views back to back (a scene cut, whatever the gain) stay far above it."""
+    from frontdiag.verdicts import load_ruleset
+
+    rule = next(r for r in load_ruleset().rules if r.id == "FD-EXP-001")
+    level = rule.params["residual_affine_max"].value
+
+    def gain(img: np.ndarray, a: float) -> np.ndarray:
+        return np.clip(img.astype(np.float32) * a, 0, 255).astype(np.uint8)
+
+    tum = sorted((TUM / "rgb").glob("*.png"))
+    euroc1, euroc2 = (_crop(_gray(EUROC / f"LK{i}.png")) for i in (1, 2))
+    kitti12, kitti13 = (_crop(_gray(KITTI / "images" / f"kitti06-{i}.png")) for i in (12, 13))
+    tum0, tum16 = _crop(_gray(tum[0])), _crop(_gray(tum[16]))
+    for a, b in ((euroc1, euroc2), (kitti12, kitti13)):
+        row = _pair_row(a, gain(b, 0.8))
+        assert abs(row["d_mean_intensity"]) > 8 and row["photo_residual_med"] >= 16
+        assert row["photo_residual_affine_med"] < level
+    for a, b in ((tum0, euroc1), (euroc1, kitti12), (kitti12, tum0), (tum0, tum16)):
+        for g in (1.0, 0.7):
+            row = _pair_row(a, gain(b, g))
+            assert row["ratio_reject_rate"] > 0.9
+            assert row["photo_residual_affine_med"] > 2 * level

@@ -153,6 +153,21 @@ def test_a_scene_cut_is_not_an_exposure_step(ruleset) -> None:
     assert conds(evaluate(t, ruleset), 10) == []
 
 
+@pytest.mark.parametrize(("res_aff", "expected"), [
+    (3.6, ["exposure_step"]),   # the affine model explains it: only the gain changed
+    (45.0, []),                 # unrelated views at a scene cut keep their residual
+    (np.nan, []),               # no affine fit: the rejection alone speaks, and says collapse
+])
+def test_a_step_where_the_scene_already_rejects_much(ruleset, res_aff, expected) -> None:
+    # Approaching a bright doorway the base rejection is ~57%; a gain step adds its ~15-25
+    # points on top and crosses the 70% line. Whether the affine brightness model removes the
+    # residual (ch4's distinguishing value) tells the step from a scene cut.
+    base = {range(30): {"ratio_reject_rate": 0.57}}
+    base[10] = {"d_mean_intensity": -16.9, "photo_residual_med": 16.0, "ratio_reject_rate": 0.73,
+                "photo_residual_affine_med": res_aff, "affine_gain": 0.85}
+    assert conds(evaluate(frames(30, base), ruleset), 10) == expected
+
+
 def test_exposure_step_recovery_is_relative_to_the_scene(ruleset) -> None:
     # a close-up texture runs at a residual of ~9; after the step it returns there, not to 4
     base = {i: {"photo_residual_med": 9.0} for i in range(30)}

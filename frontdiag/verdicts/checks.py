@@ -207,11 +207,21 @@ def _exposure_context(df: pd.DataFrame, p: Params) -> pd.DataFrame:
                          "recovers_after_frames": [float(r) for _, r in steps]})
 
 
+def _affine_absorbs(df: pd.DataFrame, p: Params) -> np.ndarray:
+    """Rows whose residual the affine brightness model brings back to a healthy level."""
+    res_aff = col(df, "photo_residual_affine_med")
+    with np.errstate(invalid="ignore"):
+        return res_aff < p["residual_affine_max"]
+
+
 def _exposure_step(df: pd.DataFrame, p: Params) -> np.ndarray:
     """One frame wide with clean frames on both sides (ch4), recovering within 2-3 (ch2).
 
-    A candidate row has |d_mean_intensity| > dmean_step while matching survives (rejection
-    below reject_max: a gain step rejects ~55%, a scene cut ~100%). It is a step when its
+    A candidate row has |d_mean_intensity| > dmean_step and is explained by a change of gain:
+    matching survives (rejection below reject_max: a gain step rejects ~55%, a scene cut ~100%)
+    or the affine brightness model removes the residual at the matches (ch4's distinguishing
+    value; where the scene already rejects much, a step adds its ~25 points on top, while a
+    scene cut's unrelated patches keep their residual whatever the gain). It is a step when its
     photometric residual jumps in one frame and recovers within recovery_frames; the disturbed
     rows in between belong to it. A ramp that stays disturbed longer (lights fading, flicker) is
     another brightness violation, not a step.
@@ -219,7 +229,8 @@ def _exposure_step(df: pd.DataFrame, p: Params) -> np.ndarray:
     dm = np.abs(col(df, "d_mean_intensity"))
     res, rej = col(df, "photo_residual_med"), col(df, "ratio_reject_rate")
     with np.errstate(invalid="ignore"):
-        candidate = (dm > p["dmean_step"]) & ~(rej >= p["reject_max"])
+        candidate = (dm > p["dmean_step"]) & (
+            ~(rej >= p["reject_max"]) | _affine_absorbs(df, p))
     out = np.zeros(len(df), dtype=bool)
     for i in np.flatnonzero(candidate).tolist():
         jump, after = _step_at(i, res, rej, p)
@@ -240,14 +251,21 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
         out.append(f"affine_gain {gain:.3f} (1.0 = no gain change; a 20% step is 1.2)")
     if not np.isnan(res_aff) and not np.isnan(res):
         verdict = ("the affine model absorbs it: a brightness change, not blur"
-                   if res_aff < p["residual_step"] <= res else "")
+                   if res_aff < p["residual_affine_max"] and res >= p["residual_step"] else "")
         out.append(f"residual after the affine model {res_aff:.1f} {verdict}".rstrip())
     prev = _v(row, "prev_photo_residual_med")
     rec = _v(row, "recovers_after_frames")
     rej = _v(row, "ratio_reject_rate")
     if not np.isnan(rej) and rej >= p["reject_max"]:
-        out.append(f"ratio_reject_rate {rej:.0%} >= {p['reject_max']:.0%}: matching collapsed "
-                   "(a gain step rejects ~55%); a scene cut or repetition, not an exposure step")
+        if not np.isnan(res_aff) and res_aff < p["residual_affine_max"]:
+            out.append(f"ratio_reject_rate {rej:.0%} >= {p['reject_max']:.0%}, but the affine "
+                       f"model brings the residual to {res_aff:.1f} (< "
+                       f"{p['residual_affine_max']:g}): the matches are right and only the gain "
+                       "changed, so not a scene cut")
+        else:
+            out.append(f"ratio_reject_rate {rej:.0%} >= {p['reject_max']:.0%} and the affine "
+                       "model does not remove the residual: matching collapsed (a gain step "
+                       "rejects ~55%); a scene cut or repetition, not an exposure step")
     if rec > 0:
         out.append(f"recovered {rec:.0f} frame(s) later (a step recovers within "
                    f"{p['recovery_frames']:g})")
@@ -526,9 +544,11 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
     Check("exposure_step", "chapter 4: a jump of mean intensity with the photometric residual "
           "jumping with it, clean before and clean again within 2-3 frames",
           "frame", "camera",
-          ("d_mean_intensity", "photo_residual_med", "ratio_reject_rate", "affine_gain"),
+          ("d_mean_intensity", "photo_residual_med", "ratio_reject_rate", "affine_gain",
+           "photo_residual_affine_med"),
           {"dmean_step": _NUM, "residual_step": _NUM, "residual_jump": _NUM,
-           "reject_exposure": _NUM, "reject_max": _NUM, "recovery_frames": _NUM},
+           "residual_affine_max": _NUM, "reject_exposure": _NUM, "reject_max": _NUM,
+           "recovery_frames": _NUM},
           {"d_mean_intensity": "absmax", "photo_residual_med": "max", "affine_gain": "absdev1"},
           {"dmean_step": "d_mean_intensity", "residual_step": "photo_residual_med",
            "reject_exposure": "ratio_reject_rate"},
