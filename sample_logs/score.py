@@ -25,6 +25,7 @@ sys.path.insert(0, str(HERE.parent))
 
 from frontdiag.api import analyze  # noqa: E402
 from frontdiag.conditions import CONDITION_SENSORS, HEALTHY  # noqa: E402
+from frontdiag.errors import ConfigError  # noqa: E402
 from frontdiag.scoring import normalise_frames, read_labels, score  # noqa: E402
 from frontdiag.sim.run import labels_path_for  # noqa: E402
 
@@ -70,6 +71,9 @@ def simulate_all(seed: int, size: str, seconds: float | None, out: Path) -> list
 
 
 def main(argv: list[str]) -> int:
+    if argv[:1] in (["-h"], ["--help"]):
+        print(__doc__)
+        return 0
     if argv[:1] == ["--simulate"]:
         import argparse
         import tempfile
@@ -93,6 +97,8 @@ def main(argv: list[str]) -> int:
     healthy = alarms = 0
     rows = []
     for rec in recs:
+        if not rec.exists():
+            raise ConfigError(f"recording not found: {rec}")
         labels = read_labels(labels_path_for(rec))
         frames = normalise_frames(analyze(rec), source=str(rec))
         rep = score(frames, labels)
@@ -134,4 +140,10 @@ def main(argv: list[str]) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main(sys.argv[1:]))
+    from frontdiag.errors import FrontdiagError
+
+    try:
+        raise SystemExit(main(sys.argv[1:]))
+    except FrontdiagError as exc:
+        print(f"score.py: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
