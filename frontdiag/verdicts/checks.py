@@ -551,7 +551,8 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
            "recovery_frames": _NUM},
           {"d_mean_intensity": "absmax", "photo_residual_med": "max", "affine_gain": "absdev1"},
           {"dmean_step": "d_mean_intensity", "residual_step": "photo_residual_med",
-           "reject_exposure": "ratio_reject_rate"},
+           "reject_exposure": "ratio_reject_rate", "reject_max": "ratio_reject_rate",
+           "residual_affine_max": "photo_residual_affine_med"},
           frame=_exposure_step, explain=_exposure_explain, context=_exposure_context),
     Check("he_parallax_quadrant", "chapter 6: H/E inlier ratio x median parallax separates pure "
           "rotation, a planar scene, a nearly stationary camera and healthy motion",
