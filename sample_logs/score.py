@@ -2,7 +2,7 @@
 
     python sample_logs/score.py                       # every sample log
     python sample_logs/score.py run1.mcap run2.bag    # any recordings with .labels.csv beside
-    python sample_logs/score.py --simulate 13 320x240 [--seconds 6] [--keep DIR]
+    python sample_logs/score.py --simulate 13 320x240 [--seconds 6] [--rate 30] [--keep DIR]
                                                       # every scenario freshly simulated
 
 Prints, per condition over all recordings: episodes found, frame precision/recall/F1 and false
@@ -52,8 +52,9 @@ def _q(s: pd.Series) -> str:
     return f"{s.median():.2f} [{s.quantile(0.1):.2f}, {s.quantile(0.9):.2f}]"
 
 
-def simulate_all(seed: int, size: str, seconds: float | None, out: Path) -> list[Path]:
-    """Every scenario at this seed and size, with a 16x512 LiDAR, written to ``out``."""
+def simulate_all(seed: int, size: str, seconds: float | None, out: Path,
+                 rate_hz: float = 15.0) -> list[Path]:
+    """Every scenario at this seed, size and camera rate, with a 16x512 LiDAR, in ``out``."""
     from frontdiag.sim.lidar import LidarSpec
     from frontdiag.sim.run import SimOptions, simulate
     from frontdiag.sim.scenarios import SCENARIOS
@@ -61,7 +62,7 @@ def simulate_all(seed: int, size: str, seconds: float | None, out: Path) -> list
     w, h = (int(v) for v in size.lower().split("x"))
     recs = []
     for name in SCENARIOS:
-        opts = SimOptions(seconds=seconds, seed=seed, width=w, height=h,
+        opts = SimOptions(seconds=seconds, seed=seed, width=w, height=h, rate_hz=rate_hz,
                           lidar=LidarSpec(beams=16, columns=512))
         rec = out / f"s{seed}_{w}x{h}_{name}.mcap"
         simulate(name, rec, "mcap", opts)
@@ -83,13 +84,14 @@ def main(argv: list[str]) -> int:
         ap.add_argument("size", help="WxH, e.g. 320x240")
         ap.add_argument("--seconds", type=float, default=None,
                         help="length of every scenario (default: each scenario's own)")
+        ap.add_argument("--rate", type=float, default=15.0, help="camera rate, Hz (default 15)")
         ap.add_argument("--keep", type=Path, default=None, help="write the recordings here")
         a = ap.parse_args(argv[1:])
         if a.keep is not None:
             a.keep.mkdir(parents=True, exist_ok=True)
-            return main([str(p) for p in simulate_all(a.seed, a.size, a.seconds, a.keep)])
+            return main([str(p) for p in simulate_all(a.seed, a.size, a.seconds, a.keep, a.rate)])
         with tempfile.TemporaryDirectory() as tmp:
-            return main([str(p) for p in simulate_all(a.seed, a.size, a.seconds, Path(tmp))])
+            return main([str(p) for p in simulate_all(a.seed, a.size, a.seconds, Path(tmp), a.rate)])
     recs = [Path(a) for a in argv] or sorted(
         p for p in HERE.iterdir()
         if p.suffix in (".mcap", ".bag") or (p.is_dir() and (p / "metadata.yaml").exists()))
