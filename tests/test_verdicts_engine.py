@@ -112,6 +112,16 @@ def test_repetition_is_read_between_frames_of_a_tracking_rate(ruleset, rate_hz, 
     assert all(("repetitive_structure" in conds(res, f)) == expected for f in range(7, 15))
 
 
+def test_a_gap_the_frontend_restarted_after_is_not_a_declined_row(ruleset) -> None:
+    # after a gap the frontend matches nothing (no rejection reading): nothing was declined
+    t = frames(20)
+    t.loc[10:, "t_ns"] += 2_000_000_000
+    t.loc[10, ["status", "ratio_reject_rate"]] = ["after_gap", np.nan]
+    assert not [n for n in evaluate(t, ruleset).notes if n.startswith("FD-REP-001")]
+    t.loc[10, "ratio_reject_rate"] = 0.5    # a reading across the same 2 s is declined
+    assert [n for n in evaluate(t, ruleset).notes if n.startswith("FD-REP-001")]
+
+
 def test_exposure_window_keeps_a_rejection_spike_from_reading_as_repetition(ruleset) -> None:
     # the rejection spike of the 2-3 frames after an exposure step is the step's
     t = frames(30, {10: {"d_mean_intensity": -20.0, "photo_residual_med": 21.0,
@@ -191,6 +201,20 @@ def test_he_parallax_quadrants(ruleset, he, parallax, expected) -> None:
     t = frames(20, {range(5, 15): {"h_over_e": he, "parallax_med_deg": parallax}})
     got = conds(evaluate(t, ruleset), 10)
     assert got == ([expected] if expected else [])
+
+
+@pytest.mark.parametrize(("px", "expected"), [(12.0, ["planar_degeneracy"]), (3.5, [])])
+def test_a_planar_reading_on_few_pixels_is_declined_and_said_so(ruleset, px, expected) -> None:
+    # at 320x240 and 30 Hz a keyframe interval can span ~3.5 px: a 3D scene fits H there too
+    plane = {"h_over_e": 0.96, "parallax_med_deg": 0.8, "parallax_med_px": px}
+    res = evaluate(frames(30, {range(5, 25): plane}), ruleset)
+    assert conds(res, 15) == expected
+    declined = [n for n in res.notes if n.startswith("FD-PLN-001")]
+    if expected:
+        assert not declined
+    else:
+        assert len(declined) == 1 and "did not read 20 row(s)" in declined[0]
+        assert "4.9 px" in declined[0]
 
 
 @pytest.mark.parametrize(("rot", "expected"), [(3.0, ["pure_rotation"]), (0.05, [])])

@@ -121,7 +121,8 @@ def _matching_table(df: pd.DataFrame, p: Params) -> np.ndarray:
 
 
 def _matching_unread(df: pd.DataFrame, p: Params) -> tuple[np.ndarray, str]:
-    return _wide_interval(df, p), (
+    # a row with no rejection reading (first frame, after a gap) had nothing to decline
+    return _wide_interval(df, p) & ~np.isnan(col(df, "ratio_reject_rate")), (
         f"matched across more than {p.get('max_interval_s', np.nan):g} s (slower than 3 Hz: "
         "--stride, a low-rate recording or dropped frames); read repetition at the "
         "recording's own rate")
@@ -358,6 +359,22 @@ def _he_parallax(df: pd.DataFrame, p: Params) -> np.ndarray:
     return hit
 
 
+def _he_parallax_unread(df: pd.DataFrame, p: Params) -> tuple[np.ndarray, str]:
+    """Rows whose reading falls in the wanted quadrant but with too little image parallax for
+    H/E to tell a plane from a 3D scene (min_parallax_px)."""
+    if "min_parallax_px" not in p:
+        return np.zeros(len(df), dtype=bool), ""
+    read = _keyframe_read(df, p)
+    with np.errstate(invalid="ignore"):
+        q = _quadrant(read["kf_h_over_e"].to_numpy(), read["kf_parallax_med_deg"].to_numpy(), p)
+        low = read["kf_parallax_med_px"].to_numpy() < p["min_parallax_px"]
+    mask = (q == (3 if p["want"] == "pure_rotation" else 2)) & low
+    return mask, (
+        f"H/E > {p['he_degenerate']:g} over a keyframe interval whose parallax stayed under "
+        f"{p['min_parallax_px']:g} px in the image, where a 3D scene fits a homography nearly "
+        "as well as E; a higher resolution or a longer keyframe baseline lets it be read")
+
+
 _QUADRANT_WORDS = {
     -1: "quadrant unknown: h_over_e or parallax_med_deg not computable",
     0: "healthy quadrant (H/E low, parallax high): the normal operating point",
@@ -566,7 +583,8 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
            "min_entropy": "entropy_norm", "min_parallax_px": "parallax_med_px",
            "min_rotation_deg": "rot_deg"},
           frame=_he_parallax, explain=_he_parallax_explain, context=_keyframe_read,
-          optional=frozenset({"min_entropy", "min_parallax_px", "min_rotation_deg"})),
+          optional=frozenset({"min_entropy", "min_parallax_px", "min_rotation_deg"}),
+          unread=_he_parallax_unread),
     Check("clustering", "chapter 1: low keypoint entropy with enough features, confirmed by the "
           "condition number of the pose information matrix",
           "frame", "camera", ("entropy_norm", "entropy_inliers_norm", "n_keypoints",
