@@ -178,6 +178,25 @@ def test_a_step_where_the_scene_already_rejects_much(ruleset, res_aff, expected)
     assert conds(evaluate(frames(30, base), ruleset), 10) == expected
 
 
+def test_a_rule_file_without_the_affine_level_reads_rejection_alone(tmp_path) -> None:
+    # rules written before residual_affine_max still load; the 70% line then decides alone
+    import shutil
+
+    from frontdiag.verdicts.loader import default_rules_dir
+
+    rules = tmp_path / "rules"
+    shutil.copytree(default_rules_dir(), rules)
+    toml = rules / "photometric.toml"
+    toml.write_text("".join(line for line in toml.read_text().splitlines(keepends=True)
+                            if not line.startswith("residual_affine_max")))
+    base = {range(30): {"ratio_reject_rate": 0.57}}
+    base[10] = {"d_mean_intensity": -16.9, "photo_residual_med": 16.0, "ratio_reject_rate": 0.73,
+                "photo_residual_affine_med": 3.6}
+    assert conds(evaluate(frames(30, base), load_ruleset(rules)), 10) == []
+    base[10]["ratio_reject_rate"] = 0.60
+    assert conds(evaluate(frames(30, base), load_ruleset(rules)), 10) == ["exposure_step"]
+
+
 def test_exposure_step_recovery_is_relative_to_the_scene(ruleset) -> None:
     # a close-up texture runs at a residual of ~9; after the step it returns there, not to 4
     base = {i: {"photo_residual_med": 9.0} for i in range(30)}

@@ -209,7 +209,10 @@ def _exposure_context(df: pd.DataFrame, p: Params) -> pd.DataFrame:
 
 
 def _affine_absorbs(df: pd.DataFrame, p: Params) -> np.ndarray:
-    """Rows whose residual the affine brightness model brings back to a healthy level."""
+    """Rows whose residual the affine brightness model brings back to a healthy level (none
+    when a rule file leaves residual_affine_max out: rejection alone then decides)."""
+    if "residual_affine_max" not in p:
+        return np.zeros(len(df), dtype=bool)
     res_aff = col(df, "photo_residual_affine_med")
     with np.errstate(invalid="ignore"):
         return res_aff < p["residual_affine_max"]
@@ -250,18 +253,19 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
            f"photo_residual_med {_fmt(res)} vs >= {p['residual_step']:g} (healthy ~4, step 20-25)"]
     if not np.isnan(gain):
         out.append(f"affine_gain {gain:.3f} (1.0 = no gain change; a 20% step is 1.2)")
+    aff_max = float(p.get("residual_affine_max", p["residual_step"]))
     if not np.isnan(res_aff) and not np.isnan(res):
         verdict = ("the affine model absorbs it: a brightness change, not blur"
-                   if res_aff < p["residual_affine_max"] and res >= p["residual_step"] else "")
+                   if res_aff < aff_max and res >= p["residual_step"] else "")
         out.append(f"residual after the affine model {res_aff:.1f} {verdict}".rstrip())
     prev = _v(row, "prev_photo_residual_med")
     rec = _v(row, "recovers_after_frames")
     rej = _v(row, "ratio_reject_rate")
     if not np.isnan(rej) and rej >= p["reject_max"]:
-        if not np.isnan(res_aff) and res_aff < p["residual_affine_max"]:
+        if "residual_affine_max" in p and not np.isnan(res_aff) and res_aff < aff_max:
             out.append(f"ratio_reject_rate {rej:.0%} >= {p['reject_max']:.0%}, but the affine "
                        f"model brings the residual to {res_aff:.1f} (< "
-                       f"{p['residual_affine_max']:g}): the matches are right and only the gain "
+                       f"{aff_max:g}): the matches are right and only the gain "
                        "changed, so not a scene cut")
         else:
             out.append(f"ratio_reject_rate {rej:.0%} >= {p['reject_max']:.0%} and the affine "
@@ -570,7 +574,8 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
           {"dmean_step": "d_mean_intensity", "residual_step": "photo_residual_med",
            "reject_exposure": "ratio_reject_rate", "reject_max": "ratio_reject_rate",
            "residual_affine_max": "photo_residual_affine_med"},
-          frame=_exposure_step, explain=_exposure_explain, context=_exposure_context),
+          frame=_exposure_step, explain=_exposure_explain, context=_exposure_context,
+          optional=frozenset({"residual_affine_max"})),
     Check("he_parallax_quadrant", "chapter 6: H/E inlier ratio x median parallax separates pure "
           "rotation, a planar scene, a nearly stationary camera and healthy motion",
           "frame", "camera", ("h_over_e", "parallax_med_deg", "ref_frame", "entropy_norm",
