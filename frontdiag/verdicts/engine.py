@@ -95,7 +95,7 @@ def rule_mask(rule: Rule, rows: pd.DataFrame) -> np.ndarray:
     if rule.check is not None:
         chk = CHECKS[rule.check]
         assert chk.frame is not None
-        params = {k: p.value for k, p in rule.params.items()}
+        params = rule.param_values()
         combined = combined & np.asarray(chk.frame(rows, params), dtype=bool)
     return combined
 
@@ -106,7 +106,7 @@ def _unread_notes(table: pd.DataFrame, rules: tuple[Rule, ...]) -> list[str]:
         chk = CHECKS.get(rule.check or "")
         if chk is None or chk.unread is None:
             continue
-        params = {k: p.value for k, p in rule.params.items()}
+        params = rule.param_values()
         n, why = 0, ""
         for _topic, pos in topic_groups(table, rule.sensor):
             mask, why = chk.unread(table.iloc[pos], params)
@@ -305,7 +305,7 @@ def evaluate(table: pd.DataFrame, ruleset: Ruleset) -> Verdicts:
     for rule in ruleset.run_rules:
         chk = CHECKS[rule.check or ""]
         assert chk.run is not None
-        outcome: RunOutcome = chk.run(out, {k: p.value for k, p in rule.params.items()})
+        outcome: RunOutcome = chk.run(out, rule.param_values())
         findings.append(RunFinding(rule.id, rule.condition, rule.severity, outcome.fired,
                                    outcome.value, outcome.message, outcome.frames))
     episodes = _episodes(out, ruleset.frame_rules, hits, relative_time(out),

@@ -58,7 +58,7 @@ def _raw_hits(result: Verdicts, rule: Rule, position: int) -> tuple[bool, dict[s
             ctx: dict[str, Any] = {}
             chk = CHECKS.get(rule.check or "")
             if chk is not None and chk.context is not None:
-                params = {k: p.value for k, p in rule.params.items()}
+                params = rule.param_values()
                 ctx = chk.context(rows.reset_index(drop=True), params).iloc[where[0]].to_dict()
             return raw, ctx
     return False, {}
@@ -86,7 +86,7 @@ def explain_row(result: Verdicts, position: int) -> list[RuleExplanation]:
             chk = CHECKS[rule.check]
             if chk.explain is not None:
                 lines = chk.explain({**row, **ctx},
-                                    {k: p.value for k, p in rule.params.items()})
+                                    rule.param_values())
         fired = bool(result.hits[rule.id][position]) if rule.id in result.hits else False
         out.append(RuleExplanation(rule, fired, raw, clauses, lines))
     return out

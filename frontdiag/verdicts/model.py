@@ -107,8 +107,12 @@ class Rule(_Strict):
     def thresholds(self) -> dict[str, Any]:
         """Every overridable threshold of the rule by name: clause values and check params."""
         out: dict[str, Any] = {c.name: c.value for c in self.when}
-        out.update({k: p.value for k, p in self.params.items()})
+        out.update(self.param_values())
         return out
+
+    def param_values(self) -> dict[str, Any]:
+        """The check's params by name, as the check functions take them."""
+        return {k: p.value for k, p in self.params.items()}
 
     def param(self, name: str) -> Any:
         return self.params[name].value
