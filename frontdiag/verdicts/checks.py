@@ -343,11 +343,17 @@ def _keyframe_read(df: pd.DataFrame, p: Params) -> pd.DataFrame:
 WEAK_HE_PARALLAX_PX = 2 * homography_threshold_px(1.0)
 
 
-def _he_parallax(df: pd.DataFrame, p: Params) -> np.ndarray:
+def _wanted_quadrant(df: pd.DataFrame, p: Params) -> tuple[pd.DataFrame, np.ndarray]:
+    """The keyframe reading, and which rows it puts in the quadrant the rule wants."""
     read = _keyframe_read(df, p)
     with np.errstate(invalid="ignore"):
         q = _quadrant(read["kf_h_over_e"].to_numpy(), read["kf_parallax_med_deg"].to_numpy(), p)
-        hit = q == (3 if p["want"] == "pure_rotation" else 2)
+    return read, q == (3 if p["want"] == "pure_rotation" else 2)
+
+
+def _he_parallax(df: pd.DataFrame, p: Params) -> np.ndarray:
+    read, hit = _wanted_quadrant(df, p)
+    with np.errstate(invalid="ignore"):
         if "min_entropy" in p:
             # features crowded into a small cone are locally planar: a homography fits them
             # whatever the scene, so H/E only reads the scene when the features are spread
@@ -368,12 +374,10 @@ def _he_parallax_unread(df: pd.DataFrame, p: Params) -> tuple[np.ndarray, str]:
     H/E to tell a plane from a 3D scene (min_parallax_px)."""
     if "min_parallax_px" not in p:
         return np.zeros(len(df), dtype=bool), ""
-    read = _keyframe_read(df, p)
+    read, wanted = _wanted_quadrant(df, p)
     with np.errstate(invalid="ignore"):
-        q = _quadrant(read["kf_h_over_e"].to_numpy(), read["kf_parallax_med_deg"].to_numpy(), p)
         low = read["kf_parallax_med_px"].to_numpy() < p["min_parallax_px"]
-    mask = (q == (3 if p["want"] == "pure_rotation" else 2)) & low
-    return mask, (
+    return wanted & low, (
         f"H/E > {p['he_degenerate']:g} over a keyframe interval whose parallax stayed under "
         f"{p['min_parallax_px']:g} px in the image, where a 3D scene fits a homography nearly "
         "as well as E; a higher resolution or a longer keyframe baseline lets it be read")
