@@ -1,8 +1,10 @@
 """Where a simulated scene's ratio-test rejections come from, by the surface under each keypoint.
 
     python sample_logs/rejection_by_surface.py repetitive_aisle 1280x720 [--seed 21]
+        [--rate 30] [--pan 1.57]
 
-Renders pairs of consecutive frames (15 Hz) along the scenario's first part, runs the frontend's
+Renders pairs of consecutive frames (15 Hz unless ``--rate``; ``--pan`` turns the camera head
+that many radians to the left of the scenario's heading) along the scenario's first part, runs the frontend's
 ORB extractor and the ratio test (0.8) of every query against all features of the previous
 frame, and prints, per surface kind (crate faces, labels, uprights, blank paint): its share of
 the features and its rejection rate. Two columns say why queries were rejected:
@@ -17,6 +19,8 @@ frame, is where its true correspondence lies. ``re-found`` is the share of queri
 keypoint of the previous frame within 2.5 px of that spot, and ``d_true`` the median Hamming
 distance to the best of those (an accepted match typically reads 25-35 bits; two unrelated ORB
 descriptors about 128). Rejections with the true partner missing or far are not ambiguity.
+``wrong`` is the share of queries the ratio test accepted whose partner is not that spot: a
+copy taken with confidence, the opposite outcome of the same ambiguity.
 """
 
 from __future__ import annotations
@@ -34,7 +38,6 @@ from frontdiag.sim.scenarios import SCENARIOS
 from frontdiag.sim.scenes import Builder
 from frontdiag.sim.world import World
 
-RATE_HZ = 15.0
 TRUE_RADIUS_PX = 2.5
 PATCH_HALF = 15.5  # ORB's 31 px patch, at level 0
 
@@ -45,6 +48,8 @@ def main() -> None:
     ap.add_argument("size", help="WxH, e.g. 1280x720")
     ap.add_argument("--seed", type=int, default=21)
     ap.add_argument("--pairs", type=int, default=10)
+    ap.add_argument("--rate", type=float, default=15.0, help="camera rate, Hz")
+    ap.add_argument("--pan", type=float, default=0.0, help="camera head pan, rad (left +)")
     a = ap.parse_args()
     w_px, h_px = (int(v) for v in a.size.lower().split("x"))
     parts = SCENARIOS[a.scenario].make(8.0)
@@ -53,14 +58,14 @@ def main() -> None:
     world = World()
     parts[0].build(Builder(world, np.random.default_rng([a.seed, 1, 0]), w_px / 640.0))
     ex = OrbExtractor(1000)
-    acc: dict[str, np.ndarray] = defaultdict(lambda: np.zeros(4))
+    acc: dict[str, np.ndarray] = defaultdict(lambda: np.zeros(5))
     d_true: dict[str, list[int]] = defaultdict(list)
     K_inv = np.linalg.inv(intr.K)
     for k in range(5, 5 + 6 * a.pairs, 6):
-        t0, t1 = k / RATE_HZ, (k + 1) / RATE_HZ
+        t0, t1 = k / a.rate, (k + 1) / a.rate
         if tl.part_index(t1) != 0:
             break
-        T0, T1 = camera_T(tl.pose(t0, 0)), camera_T(tl.pose(t1, 0))
+        T0, T1 = (camera_T(_panned(tl.pose(t, 0), a.pan)) for t in (t0, t1))
         r0, _ = render(world, intr, T0)
         r1, sid = render(world, intr, T1)
         gain = 0.55 / max(float(r0.mean()), 1e-3)
@@ -79,10 +84,13 @@ def main() -> None:
         xy = np.clip(fb.xy.astype(int), 0, [w_px - 1, h_px - 1])
         ids = sid[xy[:, 1], xy[:, 0]]
         kinds = np.array([world.surfaces[i].kind if i >= 0 else "background" for i in ids])
+        spots = _true_spots(world, intr, K_inv, T0, T1, fb.xy, ids)
+        off = np.linalg.norm(fa.xy[j[:, 0]] - spots, axis=1) > TRUE_RADIUS_PX  # NaN: False
+        wrong = ~rej & off
         for kind in np.unique(kinds):
             sel = kinds == kind
-            acc[kind] += [sel.sum(), rej[sel].sum(), ambiguous[sel].sum(), same[sel].sum()]
-        spots = _true_spots(world, intr, K_inv, T0, T1, fb.xy, ids)
+            acc[kind] += [sel.sum(), rej[sel].sum(), ambiguous[sel].sum(), same[sel].sum(),
+                          wrong[sel].sum()]
         for qi, uv in enumerate(spots):
             near = np.linalg.norm(fa.xy - uv, axis=1) <= TRUE_RADIUS_PX
             d_true[kinds[qi]].append(int(d[qi, near].min()) if near.any() else -1)
@@ -90,13 +98,19 @@ def main() -> None:
     print(f"{a.scenario} {a.size} seed {a.seed}: {int(total)} features over the pairs, "
           f"rejection {sum(v[1] for v in acc.values()) / total:.2f}")
     print(f"  {'surface':12s} {'share':>6s} {'rejected':>9s} {'ambiguous':>10s} "
-          f"{'same corner':>12s} {'re-found':>9s} {'d_true':>7s}")
-    for kind, (n, r, amb, same_n) in sorted(acc.items(), key=lambda kv: -kv[1][0]):
+          f"{'same corner':>12s} {'re-found':>9s} {'d_true':>7s} {'wrong':>6s}")
+    for kind, (n, r, amb, same_n, wrong_n) in sorted(acc.items(), key=lambda kv: -kv[1][0]):
         dt = np.array(d_true[kind])
         found = dt[dt >= 0]
         med = f"{np.median(found):7.0f}" if len(found) else f"{'-':>7s}"
         print(f"  {kind:12s} {n / total:6.2f} {r / n:9.2f} {amb / n:10.2f} {same_n / n:12.2f} "
-              f"{len(found) / max(len(dt), 1):9.2f} {med}")
+              f"{len(found) / max(len(dt), 1):9.2f} {med} {wrong_n / n:6.2f}")
+
+
+def _panned(pose: tuple[float, float, float, float], pan: float
+            ) -> tuple[float, float, float, float]:
+    x, y, yaw, p = pose
+    return x, y, yaw, p + pan
 
 
 def _true_spots(world: World, intr: Intrinsics, K_inv: np.ndarray, T0: np.ndarray,
