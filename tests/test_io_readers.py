@@ -274,3 +274,32 @@ def test_db3_refused_for_another_reason_keeps_the_rosbags_error(tmp_path: Path) 
                     .replace("compression_mode: ''", "compression_mode: 'MESSAGE'"))
     with pytest.raises(RecordingError, match="cannot open recording"):
         open_recording(folder)
+
+
+def _with_depth(w, i, t):  # type: ignore[no-untyped-def]
+    depth = (frame(i).astype(np.uint16) * 8).astype(np.uint16)
+    w.write("/cam/depth/image_raw", "sensor_msgs/msg/Image", image_msg(depth, "16UC1", t), t)
+
+
+def test_depth_image_topics_are_not_camera_candidates(tmp_path: Path) -> None:
+    # an RGB-D recording: the intensity camera is taken, the depth stream named in a note
+    path = write_recording(tmp_path / "rgbd.mcap", "mcap", n=2, extra=_with_depth)
+    with open_recording(path) as rec:
+        choice = choose_topics(rec.topics)
+        forced = choose_topics(rec.topics, camera_topic="/cam/depth/image_raw")
+    assert choice.camera == "/cam/image_raw"
+    assert any("/cam/depth/image_raw" in n and "--camera-topic" in n for n in choice.notes)
+    assert forced.camera == "/cam/depth/image_raw"
+
+
+def test_depth_only_recording_says_so(tmp_path: Path) -> None:
+    def only_depth(w, i, t):  # type: ignore[no-untyped-def]
+        _with_depth(w, i, t)
+
+    path = write_recording(tmp_path / "rgbd.mcap", "mcap", n=2, extra=only_depth)
+    with open_recording(path) as rec:
+        topics = [t for t in rec.topics if t.topic != "/cam/image_raw"]
+    with pytest.raises(TopicError) as err:
+        choose_topics(topics)
+    assert "depth images" in str(err.value)
+    assert "--camera-topic /cam/depth/image_raw" in (err.value.hint or "")

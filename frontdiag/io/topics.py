@@ -12,6 +12,14 @@ from frontdiag.io.readers import TopicInfo
 LIDAR_TYPES = ("sensor_msgs/msg/PointCloud2", "sensor_msgs/msg/LaserScan")
 ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
 _NOT_ODOMETRY = ("ground_truth", "groundtruth", "/gt", "truth", "mocap", "vicon")
+# image topics that carry range, not intensity (RGB-D and stereo drivers publish them beside the
+# camera: /camera/depth/image, /camera/aligned_depth_to_color/image_raw, .../compressedDepth)
+_NOT_INTENSITY = ("depth", "disparity")
+
+
+def is_depth_topic(topic: str) -> bool:
+    """Whether an image topic's name says it holds depth or disparity, not intensity."""
+    return any(k in seg for seg in topic.lower().split("/") for k in _NOT_INTENSITY)
 
 
 @dataclass(frozen=True)
@@ -66,8 +74,17 @@ def choose_topics(topics: list[TopicInfo], *, camera_topic: str | None = None,
                   use_camera: bool = True, use_lidar: bool = True) -> TopicChoice:
     """Pick the camera, CameraInfo, LiDAR and odometry topics analyze will read."""
     notes: list[str] = []
-    cam = _pick("camera image", "--camera-topic", camera_topic,
-                candidates(topics, IMAGE_TYPES), topics) if use_camera else None
+    images = candidates(topics, IMAGE_TYPES)
+    cam_cands, depth = images, []
+    if camera_topic is None and use_camera:
+        depth = [t for t in images if is_depth_topic(t.topic)]
+        cam_cands = [t for t in images if t not in depth]
+        if depth:
+            notes.append("not read as a camera (depth images): "
+                         + ", ".join(t.topic for t in depth)
+                         + "; pass --camera-topic to read one anyway")
+    cam = _pick("camera image", "--camera-topic", camera_topic, cam_cands,
+                topics) if use_camera else None
     lid = _pick("LiDAR", "--lidar-topic", lidar_topic,
                 candidates(topics, LIDAR_TYPES), topics) if use_lidar else None
     info = None
@@ -90,6 +107,11 @@ def choose_topics(topics: list[TopicInfo], *, camera_topic: str | None = None,
                 notes.append("several odometry topics; LiDAR uses a constant-velocity prior "
                              "(pass --odom-topic to use one)")
     if cam is None and lid is None:
+        if depth and use_lidar:
+            raise TopicError("no usable sensor topics: the only images are depth images ("
+                             + ", ".join(t.topic for t in depth) + ")",
+                             hint=f"pass --camera-topic {depth[0].topic} to read one as grey "
+                                  "frames anyway")
         if use_camera and use_lidar:
             raise TopicError("no usable sensor topics: the recording has no sensor_msgs/Image, "
                              "CompressedImage, PointCloud2 or LaserScan messages",
