@@ -114,19 +114,28 @@ class Builder:
             self.w.quad([x1, yb, SHELF_HEIGHT], [-1, 0, 0], DOWN, x1 - x0, SHELF_HEIGHT, back,
                         kind="blank")
         ppm_u = self.ppm(200)
-        up_tex = (T.blank(max(4, int(SHELF_HEIGHT * 20)), 4, self.rng, level=self.plain - 2,
-                          contrast=1.0)
-                  if plain else T.upright(max(8, int(SHELF_HEIGHT * ppm_u)),
-                                          max(4, int(0.08 * ppm_u)),
-                                          holes=55.0 if content == "repetitive" else 12.0))
+        rep = content == "repetitive"
+        up_size = (max(8, int(SHELF_HEIGHT * ppm_u)), max(4, int(0.08 * ppm_u)))
+        if plain:
+            up_tex = T.blank(max(4, int(SHELF_HEIGHT * 20)), 4, self.rng, level=self.plain - 2,
+                             contrast=1.0)
+        elif rep:
+            # light paint, dark punched holes: the holes are the upright's corners
+            up_tex = T.upright(*up_size, holes=130.0, paint=150.0)
+        else:
+            up_tex = T.upright(*up_size, holes=12.0)
         beam_h = 0.1
-        beam_tex_rep = T.label(*self._size(0.12, 0.06, 400), self.rng)
-        # one crate and its gaps (0.22 m x 0.2 m), the tile every bay repeats
-        ch, cw = self._size(0.22, 0.2, 300)
-        tote = np.full((ch, cw), 60, np.uint8)
-        gh, gw = max(1, ch // 10), max(1, cw // 11)
-        tote[: ch - gh, : cw - gw] = T.bin_front(ch - gh, cw - gw, self.rng)
-        rep_cartons = [tote]
+        rep_cartons: list[np.ndarray] = []
+        beam_tex_rep = np.zeros((1, 1), np.uint8)
+        if rep:
+            # the one beam label and the one crate (0.22 m x 0.2 m with its gaps) every bay
+            # repeats
+            beam_tex_rep = T.beam_label(*self._size(0.12, 0.06, 400), self.rng)
+            ch, cw = self._size(0.22, 0.2, 300)
+            tote = np.full((ch, cw), 60, np.uint8)
+            gh, gw = max(1, ch // 10), max(1, cw // 11)
+            tote[: ch - gh, : cw - gw] = T.bin_front(ch - gh, cw - gw, self.rng)
+            rep_cartons = [tote]
         xs = np.arange(x0, x1 + 1e-6, UPRIGHT_PITCH)
         for xk in xs:
             lo = [xk - 0.04, min(y_front, y_front + s * 0.08), 0.0]

@@ -182,16 +182,32 @@ def poster(h: int, w: int, rng: np.random.Generator) -> np.ndarray:
     return img
 
 
-def upright(h: int, w: int, holes: float = 55.0) -> np.ndarray:
+def upright(h: int, w: int, holes: float = 55.0, paint: float = 70.0) -> np.ndarray:
     """A steel upright: painted, punched holes every few centimetres (identical always).
 
-    ``holes`` is how much darker the holes are than the paint.
+    ``holes`` is how much darker the holes are than the ``paint``.
     """
-    img = np.full((h, w), 70, np.uint8)
+    img = np.full((h, w), int(paint), np.uint8)
     step = max(4, w)
     for y in range(step // 2, h, step):
-        cv2.rectangle(img, (w // 3, y), (2 * w // 3, y + max(1, step // 3)), int(70 - holes), -1)
-    img[:, :max(1, w // 8)] = 70 + int(holes) // 2
+        cv2.rectangle(img, (w // 3, y), (2 * w // 3, y + max(1, step // 3)), int(paint - holes),
+                      -1)
+    img[:, :max(1, w // 8)] = min(255, int(paint + holes // 2))
+    return img
+
+
+def beam_label(h: int, w: int, rng: np.random.Generator) -> np.ndarray:
+    """A rack beam's location label: a barcode filling the paper, bars of 1-3 units.
+
+    Bars repeat at a handful of widths, so most of a barcode's corners look like the next bar's.
+    """
+    img = np.full((h, w), 235, np.uint8)
+    x, unit = int(0.06 * w), max(1, round(h / 70.0))
+    while x < int(0.94 * w):
+        bw = int(rng.integers(1, 4)) * unit
+        if rng.random() < 0.55:
+            img[int(0.15 * h):int(0.85 * h), x:x + bw] = 25
+        x += bw
     return img
 
 
@@ -201,7 +217,7 @@ def bin_front(h: int, w: int, rng: np.random.Generator) -> np.ndarray:
     The slots repeat every few centimetres, so the neighbourhood of one slot corner is the
     neighbourhood of the next: the pattern that makes nearest-neighbour matching ambiguous.
     """
-    img = _to_u8(120 + 3.0 * pink_noise(h, w, rng, finest=4))
+    img = _to_u8(170 + 3.0 * pink_noise(h, w, rng, finest=4))  # light grey plastic
     rim = max(1, h // 10)
     img[:rim] = 70
     pitch = max(3, w // 4)
