@@ -92,6 +92,14 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
        "parallax_med_deg as an image displacement, fx * tan(angle): H/E can tell a plane from 3D "
        "structure only when this is well above the 2.45 px homography threshold", "higher"),
     _M("rot_deg", "deg", "camera", "rotation angle recovered against the reference keyframe"),
+    _M("ref2_frame", "", "camera",
+       "the keyframe before the reference, read when parallax_med_px is under twice the "
+       "homography threshold (4.9 px); -1 when not read"),
+    _M("h_over_e_2kf", "ratio", "camera",
+       "h_over_e against ref2_frame, over the tracks alive across both keyframe intervals",
+       "lower"),
+    _M("parallax_med_deg_2kf", "deg", "camera", "parallax_med_deg against ref2_frame", "higher"),
+    _M("parallax_med_px_2kf", "px", "camera", "parallax_med_px against ref2_frame", "higher"),
     _M("t_dir_change_deg", "deg", "camera",
        "change of the recovered translation direction since the previous frame (same reference)"),
     _M("pose_info_cond", "ratio", "camera",

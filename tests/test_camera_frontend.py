@@ -166,3 +166,28 @@ def test_keyframe_policy_fires_on_frame_count_and_parallax() -> None:
     same_ref = [r for r, prev in zip(moving[2:], moving[1:], strict=False)
                 if r["ref_frame"] == prev["ref_frame"]]
     assert same_ref and all(r["t_dir_change_deg"] < 15 for r in same_ref)
+
+
+def test_a_short_interval_is_also_read_against_the_keyframe_before() -> None:
+    # keyframes every 4 frames on a slow walk: each interval spans a few pixels, under the
+    # 4.9 px at which H/E starts to tell a plane from 3D structure
+    fe = CameraFrontend(CameraParams(kf_max_frames=4), Intrinsics(K=K))
+    rows = [fe.process(frame(i, g)) for i, g in enumerate(walk(14, step_deg=0.05,
+                                                                step_m=0.01))]
+    kfs = [i for i, r in enumerate(rows) if r["keyframe_reason"]]
+    assert kfs[:3] == [0, 4, 8]
+    # first interval: no keyframe before the reference
+    assert all(r["ref2_frame"] == -1 and np.isnan(r["h_over_e_2kf"]) for r in rows[1:5])
+    later = [(i, r) for i, r in enumerate(rows) if i > 4 and r["parallax_med_px"] < 4.9]
+    assert later
+    for i, r in later:
+        ref = r["ref_frame"]
+        assert r["ref2_frame"] == ref - 4, (i, r["ref2_frame"])
+        assert r["parallax_med_px_2kf"] > r["parallax_med_px"]
+        assert 0.0 < r["h_over_e_2kf"] <= 1.5
+
+
+def test_enough_parallax_needs_no_second_read() -> None:
+    rows = run(walk(8, step_deg=0.3, step_m=0.08))
+    wide = [r for r in rows[1:] if r["parallax_med_px"] >= 4.9]
+    assert wide and all(r["ref2_frame"] == -1 for r in wide)

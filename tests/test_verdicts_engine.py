@@ -236,6 +236,31 @@ def test_a_planar_reading_on_few_pixels_is_declined_and_said_so(ruleset, px, exp
         assert "4.9 px" in declined[0]
 
 
+@pytest.mark.parametrize(("he2", "px2", "expected"), [
+    (0.94, 7.0, ["planar_degeneracy"]),  # two intervals: enough parallax, still degenerate
+    (0.74, 7.0, []),                     # two intervals tell a 3D scene (healthy at 320x240)
+    (0.94, 4.0, []),                     # still too few pixels: declined, with the note
+])
+def test_a_short_interval_is_read_two_keyframes_back(ruleset, he2, px2, expected) -> None:
+    # at 320x240 and 30 Hz one interval spans ~3.5 px; the frontend then also reads each frame
+    # against the keyframe before its reference (h_over_e_2kf, parallax_med_px_2kf)
+    short = {"h_over_e": 0.96, "parallax_med_deg": 0.8, "parallax_med_px": 3.5,
+             "h_over_e_2kf": he2, "parallax_med_deg_2kf": 1.6, "parallax_med_px_2kf": px2,
+             "ref2_frame": 0}
+    res = evaluate(frames(30, {range(5, 25): short}), ruleset)
+    assert conds(res, 15) == expected
+    declined = [n for n in res.notes if n.startswith("FD-PLN-001")]
+    assert bool(declined) == (px2 < 4.9)
+
+
+def test_the_two_interval_read_fills_only_short_intervals(ruleset) -> None:
+    # an interval that spans 12 px is read on its own, whatever the two-interval columns say
+    plane = {"h_over_e": 0.96, "parallax_med_deg": 0.8, "parallax_med_px": 12.0,
+             "h_over_e_2kf": 0.5, "parallax_med_deg_2kf": 1.6, "parallax_med_px_2kf": 20.0}
+    assert conds(evaluate(frames(30, {range(5, 25): plane}), ruleset), 15) == \
+        ["planar_degeneracy"]
+
+
 @pytest.mark.parametrize(("rot", "expected"), [(3.0, ["pure_rotation"]), (0.05, [])])
 def test_a_camera_standing_still_is_not_pure_rotation(ruleset, rot, expected) -> None:
     """H/E ~1 and no parallax in both cases; only the panning camera turned (lesson ch6: a

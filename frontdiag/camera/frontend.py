@@ -16,6 +16,12 @@ becomes the reference of the frames that follow:
 * ``parallax``      — the median parallax reaches ``kf_parallax_deg``; 2.29 deg is a baseline
   of 4% of the median depth (tan 2.29 deg = 0.04), the "few percent of the median tracked
   depth" of the lesson, measured as an angle because monocular scale is unknown.
+
+H/E needs parallax to say anything: below about twice the homography threshold (4.9 px at
+sigma = 1 px) a 3D scene fits H nearly as well as E. When a keyframe interval is that short
+(a high frame rate, a low resolution, or tracks thinning as a wall fills the view), the frame is
+also read against the keyframe before its reference, over the tracks alive across both
+intervals: ``h_over_e_2kf`` and ``parallax_med_px_2kf`` (``ref2_frame`` names that keyframe).
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ import numpy as np
 from frontdiag.camera.features import Features, OrbExtractor, spatial_entropy
 from frontdiag.camera.geometry import (
     E_SAMPLE,
+    homography_threshold_px,
     ransac_iters_required,
     ransac_iters_run,
     two_view,
@@ -90,6 +97,8 @@ class _Keyframe:
     n_base: int = 0  # tracks established in the first frame after the keyframe
     frames: int = 0  # frames processed since it became the reference
     last_t: np.ndarray | None = None
+    parent: _View | None = None  # the keyframe before this one, when tracks link the two
+    parent_idx: np.ndarray | None = None  # per feature of ``view``: its track in ``parent``, or -1
 
 
 def _row_template() -> dict[str, Any]:
@@ -101,6 +110,8 @@ def _row_template() -> dict[str, Any]:
         "inliers_e": NAN, "inliers_h": NAN, "h_over_e": NAN, "inlier_ratio": NAN,
         "ransac_iters_required": NAN, "ransac_iters_run": NAN, "parallax_med_deg": NAN,
         "parallax_med_px": NAN, "rot_deg": NAN, "t_dir_change_deg": NAN, "pose_info_cond": NAN,
+        "ref2_frame": -1, "h_over_e_2kf": NAN, "parallax_med_deg_2kf": NAN,
+        "parallax_med_px_2kf": NAN,
         "mean_intensity": NAN, "d_mean_intensity": NAN, "photo_residual_med": NAN,
         "affine_gain": NAN, "affine_bias": NAN, "photo_residual_affine_med": NAN,
         "keyframe_reason": "", "ms_detect": 0.0, "ms_match": 0.0, "ms_geometry": 0.0,
@@ -123,6 +134,7 @@ class CameraFrontend:
                                        params.grid_cols, params.grid_rows)
         self._prev: _View | None = None
         self._kf: _Keyframe | None = None
+        self._he_min_px = 2 * homography_threshold_px(params.sigma_px)
 
     def reset(self) -> None:
         self._prev = None
@@ -202,8 +214,9 @@ class CameraFrontend:
                    ransac_iters_run=ransac_iters_run(tv.inlier_ratio, p.ransac_max_iters,
                                                      E_SAMPLE, p.ransac_confidence))
         if tv.parallax_med_deg == tv.parallax_med_deg:
-            row["parallax_med_px"] = float(self._K[0, 0] * math.tan(math.radians(
-                tv.parallax_med_deg)))
+            row["parallax_med_px"] = self._deg_to_px(tv.parallax_med_deg)
+            if row["parallax_med_px"] < self._he_min_px:
+                self._read_two_intervals(cur, kf, sel, row)
         if not tv.ok_e:
             row["status"] = "essential_failed"
             return False
@@ -212,6 +225,28 @@ class CameraFrontend:
             row["t_dir_change_deg"] = math.degrees(math.acos(c))
         kf.last_t = tv.t_dir
         return False
+
+    def _deg_to_px(self, deg: float) -> float:
+        assert self._K is not None
+        return float(self._K[0, 0] * math.tan(math.radians(deg)))
+
+    def _read_two_intervals(self, cur: _View, kf: _Keyframe, sel: np.ndarray,
+                            row: dict[str, Any]) -> None:
+        """H/E and parallax against the keyframe before the reference (module docstring)."""
+        if kf.parent is None or kf.parent_idx is None:
+            return
+        p = self.params
+        idx = kf.parent_idx[cur.kf_idx[sel]]
+        ok = idx >= 0
+        if ok.sum() < max(p.min_correspondences, E_SAMPLE):
+            return
+        tv = two_view(kf.parent.und[idx[ok]], cur.und[sel[ok]], self._K, sigma_px=p.sigma_px,
+                      confidence=p.ransac_confidence, max_iters=p.ransac_max_iters, seed=p.seed)
+        if not tv.ok_e or tv.parallax_med_deg != tv.parallax_med_deg:
+            return
+        row.update(ref2_frame=kf.parent.index, h_over_e_2kf=tv.h_over_e,
+                   parallax_med_deg_2kf=tv.parallax_med_deg,
+                   parallax_med_px_2kf=self._deg_to_px(tv.parallax_med_deg))
 
     def _photometric(self, cur: _View, prev: _View, q: np.ndarray, t: np.ndarray,
                      row: dict[str, Any]) -> None:
@@ -257,8 +292,12 @@ class CameraFrontend:
                 row["status"] = "no_features"
             reason = self._keyframe_reason(lost, kf, row)
         if reason:
+            # the new reference keeps its tracks into the old one, unless they were lost
+            linked = kf is not None and reason != "lost"
+            parent_idx = cur.kf_idx if linked else None
             cur.kf_idx = np.arange(len(cur.feats), dtype=np.intp)
-            self._kf = _Keyframe(cur)
+            self._kf = _Keyframe(cur, parent=kf.view if linked and kf else None,
+                                 parent_idx=parent_idx)
         row["keyframe_reason"] = reason
         self._prev = cur
         row.update(ms_detect=timer.ms.get("detect", 0.0), ms_match=timer.ms.get("match", 0.0),

@@ -6,9 +6,10 @@ contains decides its label, so each builder documents what a camera and a LiDAR 
 
 - ``unique`` shelving: cartons of random size, depth and print in every bay — textured, 3D,
   unambiguous. Healthy for both sensors.
-- ``repetitive`` shelving: every bay holds the same cartons carrying literally the same texture
-  array and the same bin label, on identical uprights every 1.2 m. Feature count stays normal
-  while nearest-neighbour matching becomes ambiguous.
+- ``repetitive`` shelving: every bay holds the same crates carrying literally the same texture
+  array and the same barcode beam label, on identical uprights every 1.2 m (light paint, dark
+  punched holes). These periodic patterns take the feature budget, so the feature count stays
+  normal while their descriptors stop telling one copy, or one moment, from the next.
 - ``labels`` shelving: blank shelf backs and plain uprights, plus one bank of printed labels at
   eye height on bins at staggered depths: all texture in one narrow band of the image.
 - ``blank`` shelving: blank backs, plain uprights, no stock. Geometry for the LiDAR, nothing for

@@ -320,7 +320,8 @@ def _keyframe_read(df: pd.DataFrame, p: Params) -> pd.DataFrame:
     par_px, rot = col(df, "parallax_med_px"), col(df, "rot_deg")
     ref = col(df, "ref_frame")
     out = pd.DataFrame({"kf_h_over_e": he, "kf_parallax_med_deg": par,
-                        "kf_parallax_med_px": par_px, "kf_rot_deg": rot})
+                        "kf_parallax_med_px": par_px, "kf_rot_deg": rot,
+                        "kf_intervals": np.where(ref >= 0, 1.0, np.nan)})
     valid = ~np.isnan(he) & ~np.isnan(par) & (ref >= 0)
     if p.get("read_at", "frame") != "keyframe" or not valid.any():
         return out
@@ -333,7 +334,32 @@ def _keyframe_read(df: pd.DataFrame, p: Params) -> pd.DataFrame:
     out.loc[pos, "kf_parallax_med_deg"] = read["par"].reindex(ref[pos]).to_numpy()
     out.loc[pos, "kf_parallax_med_px"] = read["px"].reindex(ref[pos]).to_numpy()
     out.loc[pos, "kf_rot_deg"] = rows.groupby("ref")["rot"].max().reindex(ref[pos]).to_numpy()
+    if "min_parallax_px" in p:
+        _two_interval_read(df, out, pos, ref, p["min_parallax_px"])
     return out
+
+
+def _two_interval_read(df: pd.DataFrame, out: pd.DataFrame, pos: np.ndarray, ref: np.ndarray,
+                       min_px: float) -> None:
+    """Where an interval's own reading has under ``min_px`` of parallax, read it against the
+    keyframe before its reference instead (the frontend's ``*_2kf`` columns), the same way:
+    medians over the upper half by parallax of the rows sharing the reference."""
+    he2, par2, px2 = col(df, "h_over_e_2kf"), col(df, "parallax_med_deg_2kf"), \
+        col(df, "parallax_med_px_2kf")
+    ok = ~np.isnan(he2[pos]) & ~np.isnan(px2[pos])
+    if not ok.any():
+        return
+    p2 = pos[ok]
+    rows = pd.DataFrame({"ref": ref[p2], "he": he2[p2], "par": par2[p2], "px": px2[p2]})
+    upper = rows[rows["px"] >= rows.groupby("ref")["px"].transform("median")]
+    read = upper.groupby("ref")[["he", "par", "px"]].median().reindex(ref[pos])
+    short = out.loc[pos, "kf_parallax_med_px"].to_numpy() < min_px
+    use = short & (read["px"].to_numpy() >= min_px)
+    at = pos[use]
+    out.loc[at, "kf_h_over_e"] = read["he"].to_numpy()[use]
+    out.loc[at, "kf_parallax_med_deg"] = read["par"].to_numpy()[use]
+    out.loc[at, "kf_parallax_med_px"] = read["px"].to_numpy()[use]
+    out.loc[at, "kf_intervals"] = 2.0
 
 
 # H/E separates a plane from 3D structure only when points off the plane move off the
@@ -379,8 +405,9 @@ def _he_parallax_unread(df: pd.DataFrame, p: Params) -> tuple[np.ndarray, str]:
         low = read["kf_parallax_med_px"].to_numpy() < p["min_parallax_px"]
     return wanted & low, (
         f"H/E > {p['he_degenerate']:g} over a keyframe interval whose parallax stayed under "
-        f"{p['min_parallax_px']:g} px in the image, where a 3D scene fits a homography nearly "
-        "as well as E; a higher resolution or a longer keyframe baseline lets it be read")
+        f"{p['min_parallax_px']:g} px in the image, also when read two keyframe intervals back, "
+        "where a 3D scene fits a homography nearly as well as E; a higher resolution or a longer "
+        "keyframe baseline lets it be read")
 
 
 _QUADRANT_WORDS = {
@@ -396,7 +423,14 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     he, par = _v(row, "h_over_e"), _v(row, "parallax_med_deg")
     kf_he, kf_par = _v(row, "kf_h_over_e"), _v(row, "kf_parallax_med_deg")
     out = [f"this frame: h_over_e {_fmt(he)}, parallax_med_deg {_fmt(par)}"]
-    if not np.isnan(kf_he) and (kf_he != he or kf_par != par):
+    if _v(row, "kf_intervals") == 2:
+        out.append(f"read against keyframe {int(_v(row, 'ref2_frame'))}, two keyframe "
+                   f"intervals back, because one interval spanned under "
+                   f"{float(p.get('min_parallax_px', WEAK_HE_PARALLAX_PX)):.2g} px: h_over_e "
+                   f"{_fmt(kf_he)}, parallax {_fmt(kf_par)} (H/E is uninformative at low "
+                   "parallax)")
+        he, par = kf_he, kf_par
+    elif not np.isnan(kf_he) and (kf_he != he or kf_par != par):
         out.append(f"read over the reference keyframe's higher-parallax frames: h_over_e "
                    f"{_fmt(kf_he)}, parallax {_fmt(kf_par)} (H/E is uninformative at low "
                    "parallax)")
