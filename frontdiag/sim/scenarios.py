@@ -126,20 +126,24 @@ class LoopPath:
 # -- worlds ---------------------------------------------------------------------------------
 
 def hall(b: Builder) -> None:
-    """The stocked hall: an island of racking inside a ring aisle, racks along the walls."""
-    b.floor(-2, 22, -7, 7)
-    b.ceiling(-2, 22, -7, 7)
-    b.wall_x(-2, 22, 7.0, facing=-1, style="concrete")
-    b.wall_x(-2, 22, -7.0, facing=1, style="concrete")
-    b.wall_y(-7, 7, -2.0, facing=1, style="concrete")
-    b.wall_y(-7, 7, 22.0, facing=-1, style="concrete")
+    """The stocked hall: an island of racking inside a ring aisle, racks along the walls, and
+    beyond each end of the ring the island's row running on towards the end walls, so a robot
+    driving a long side looks down aisles receding in depth, not at a flat end wall."""
+    b.floor(-12, 32, -7, 7)
+    b.ceiling(-12, 32, -7, 7)
+    b.wall_x(-12, 32, 7.0, facing=-1, style="concrete")
+    b.wall_x(-12, 32, -7.0, facing=1, style="concrete")
+    b.wall_y(-7, 7, -12.0, facing=1, style="concrete")
+    b.wall_y(-7, 7, 32.0, facing=-1, style="concrete")
     b.shelving(4.0, 16.0, 0.95, -1, "unique")
     b.shelving(4.0, 16.0, -0.95, 1, "unique")
-    b.shelving(1.6, 18.4, 5.0, 1, "unique")
-    b.shelving(1.6, 18.4, -5.0, -1, "unique")
-    # the loop runs x 1.5-18.5 and turns in front of both end walls
-    b.end_stacks(19.5, 21.9, -4.4, 4.4)
-    b.end_stacks(0.6, -1.9, -4.4, 4.4)
+    b.shelving(-9.2, 29.2, 5.0, 1, "unique")
+    b.shelving(-9.2, 29.2, -5.0, -1, "unique")
+    # the island's line continues 2 m past the loop's turns (x 1.5-18.5): each long side of
+    # the loop looks on down an aisle between it and a wall rack
+    for x0, x1 in ((20.6, 29.0), (-9.0, -0.6)):
+        b.shelving(x0, x1, 0.95, -1, "unique")
+        b.shelving(x0, x1, -0.95, 1, "unique")
 
 
 def plain_aisle(left: str, right: str, length: float = 60.0,
@@ -396,7 +400,8 @@ def _mixed(seconds: float) -> list[Part]:
 
 SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
     Scenario("healthy_loop", "a loop round a stocked hall at 1.2 m/s",
-             "healthy: textured, 3D, translating; LiDAR well constrained", 12.0, _healthy_loop),
+             "healthy: textured, 3D, translating (camera: the long sides; unlabelled in the "
+             "turns); LiDAR well constrained", 12.0, _healthy_loop),
     Scenario("label_bank", "blank aisle with one bank of printed labels at eye height (left)",
              "feature_clustering: every feature in one narrow band of the image", 8.0, _label_bank),
     Scenario("repetitive_aisle", "aisle of identical uprights, crates and bin labels",
