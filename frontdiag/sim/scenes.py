@@ -225,22 +225,6 @@ class Builder:
         else:
             self.w.quad([x + 0.12, y, zl], [-1, 0, 0], DOWN, 0.12, 0.06, tex, kind="label")
 
-    def end_stacks(self, x_near: float, x_far: float, y0: float, y1: float) -> None:
-        """Carton stacks across a hall's end wall, between ``x_near`` and ``x_far`` (the wall
-        side), at staggered depths and heights: a robot turning at the end of a loop looks at
-        3D structure, not at one flat wall filling the view."""
-        rng = self.rng
-        lo, hi = min(x_near, x_far), max(x_near, x_far)
-        y = y0 + float(rng.uniform(0.0, 0.4))
-        while y < y1 - 0.6:
-            sy = float(rng.uniform(0.6, 1.2))
-            sx = float(rng.uniform(0.6, 1.2))
-            sz = float(rng.uniform(1.0, 3.2))
-            cx = float(rng.uniform(lo, hi - sx))
-            self.w.box([cx, y, 0.0], [cx + sx, y + sy, sz],
-                       lambda hh, ww: T.cardboard(hh, ww, rng), ppm=self.ppm(120), kind="carton")
-            y += sy + float(rng.uniform(0.2, 0.9))
-
     def pallets(self, x: float, y: float, n: int) -> None:
         """A few stacks of cartons on the floor (3D texture for open areas)."""
         rng = self.rng
