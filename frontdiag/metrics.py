@@ -123,7 +123,10 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
     _M("ms_geometry", "ms", "camera", "E and H estimation, recoverPose, parallax, pose information",
        "lower"),
     _M("ms_photometric", "ms", "camera", "photometric residual and affine fit", "lower"),
-    _M("ms_total", "ms", "any", "all stages of this frame", "lower"),
+    _M("ms_diagnostic", "ms", "camera",
+       "frontdiag's own extra reading (H/E over two keyframe intervals), not a frontend stage; "
+       "left out of ms_total", "lower"),
+    _M("ms_total", "ms", "any", "all stages of this frame (ms_diagnostic excluded)", "lower"),
     # --- lidar
     _M("n_points", "count", "lidar", "finite points in the scan", "higher"),
     _M("n_points_used", "count", "lidar", "points after voxel downsampling used in registration",

@@ -185,6 +185,10 @@ def test_a_short_interval_is_also_read_against_the_keyframe_before() -> None:
         assert r["ref2_frame"] == ref - 4, (i, r["ref2_frame"])
         assert r["parallax_med_px_2kf"] > r["parallax_med_px"]
         assert 0.0 < r["h_over_e_2kf"] <= 1.5
+        # timed apart from the frontend's stages, and left out of the frame total
+        assert r["ms_diagnostic"] > 0.0
+        assert r["ms_total"] == pytest.approx(r["ms_detect"] + r["ms_match"] + r["ms_geometry"]
+                                              + r["ms_photometric"])
 
 
 def test_enough_parallax_needs_no_second_read() -> None:
