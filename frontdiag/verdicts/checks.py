@@ -328,8 +328,7 @@ def _keyframe_read(df: pd.DataFrame, p: Params) -> pd.DataFrame:
     pos = np.flatnonzero(valid)
     rows = pd.DataFrame({"ref": ref[pos], "par": par[pos], "he": he[pos], "px": par_px[pos],
                          "rot": rot[pos]})
-    upper = rows[rows["par"] >= rows.groupby("ref")["par"].transform("median")]
-    read = upper.groupby("ref")[["he", "par", "px"]].median()
+    read = _upper_half_read(rows, "par")
     out.loc[pos, "kf_h_over_e"] = read["he"].reindex(ref[pos]).to_numpy()
     out.loc[pos, "kf_parallax_med_deg"] = read["par"].reindex(ref[pos]).to_numpy()
     out.loc[pos, "kf_parallax_med_px"] = read["px"].reindex(ref[pos]).to_numpy()
@@ -337,6 +336,13 @@ def _keyframe_read(df: pd.DataFrame, p: Params) -> pd.DataFrame:
     if "min_parallax_px" in p:
         _two_interval_read(df, out, pos, ref, p["min_parallax_px"])
     return out
+
+
+def _upper_half_read(rows: pd.DataFrame, by: str) -> pd.DataFrame:
+    """Per reference (``ref``): medians of he, par and px over the rows in the upper half by
+    ``by`` (the interval's higher-parallax frames)."""
+    upper = rows[rows[by] >= rows.groupby("ref")[by].transform("median")]
+    return upper.groupby("ref")[["he", "par", "px"]].median()
 
 
 def _two_interval_read(df: pd.DataFrame, out: pd.DataFrame, pos: np.ndarray, ref: np.ndarray,
@@ -351,8 +357,7 @@ def _two_interval_read(df: pd.DataFrame, out: pd.DataFrame, pos: np.ndarray, ref
         return
     p2 = pos[ok]
     rows = pd.DataFrame({"ref": ref[p2], "he": he2[p2], "par": par2[p2], "px": px2[p2]})
-    upper = rows[rows["px"] >= rows.groupby("ref")["px"].transform("median")]
-    read = upper.groupby("ref")[["he", "par", "px"]].median().reindex(ref[pos])
+    read = _upper_half_read(rows, "px").reindex(ref[pos])
     short = out.loc[pos, "kf_parallax_med_px"].to_numpy() < min_px
     use = short & (read["px"].to_numpy() >= min_px)
     at = pos[use]
