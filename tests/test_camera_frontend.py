@@ -179,16 +179,23 @@ def test_a_short_interval_is_also_read_against_the_keyframe_before() -> None:
     # first interval: no keyframe before the reference
     assert all(r["ref2_frame"] == -1 and np.isnan(r["h_over_e_2kf"]) for r in rows[1:5])
     later = [(i, r) for i, r in enumerate(rows) if i > 4 and r["parallax_med_px"] < 4.9]
-    assert later
+    assert len(later) >= 6
     for i, r in later:
         ref = r["ref_frame"]
         assert r["ref2_frame"] == ref - 4, (i, r["ref2_frame"])
-        assert r["parallax_med_px_2kf"] > r["parallax_med_px"]
         assert 0.0 < r["h_over_e_2kf"] <= 1.5
         # timed apart from the frontend's stages, and left out of the frame total
         assert r["ms_diagnostic"] > 0.0
         assert r["ms_total"] == pytest.approx(r["ms_detect"] + r["ms_match"] + r["ms_geometry"]
                                               + r["ms_photometric"])
+    # The reading over two intervals spans the longer baseline. Frame by frame, parallax this
+    # small (1-3 px) is dominated by the error of the rotation it is de-rotated with (0.05 deg
+    # a frame, estimated to +-0.1 deg), so single rows can come out either way and do differ
+    # between OpenCV 4.x and 5.x; over the run the longer baseline must show clearly. The true
+    # baselines average 2.6x the single interval's.
+    single = np.median([r["parallax_med_px"] for _, r in later])
+    double = np.median([r["parallax_med_px_2kf"] for _, r in later])
+    assert double > 1.4 * single, (double, single)
 
 
 def test_enough_parallax_needs_no_second_read() -> None:
