@@ -31,6 +31,7 @@ from frontdiag.io.topics import TopicChoice, choose_topics
 from frontdiag.metrics import CAMERA_COLUMNS, LIDAR_COLUMNS
 from frontdiag.records import CameraFrame, Intrinsics, LidarScan
 from frontdiag.timing import GapDetector
+from frontdiag.versions import versions
 
 log = logging.getLogger(__name__)
 
@@ -478,19 +479,6 @@ def _table(rows: list[dict[str, Any]]) -> pd.DataFrame:
     return df.sort_values(["t_ns", "sensor"], kind="stable").reset_index(drop=True)
 
 
-def _versions() -> dict[str, str]:
-    import importlib.metadata as md
-
-    out = {"frontdiag": __version__}
-    for dist in ("numpy", "opencv-python-headless", "rosbags", "mcap", "pandas", "pyarrow",
-                 "small-gicp", "typer", "rich"):
-        try:
-            out[dist] = md.version(dist)
-        except md.PackageNotFoundError:
-            continue
-    return out
-
-
 def _manifest(path: Path, rec: Recording, choice: TopicChoice, intr: Intrinsics | None,
               opts: AnalysisOptions, cam: _SensorStream | None, lid: _SensorStream | None,
               notes: list[str], fault: FrontdiagError | None, interrupted: bool,
@@ -516,7 +504,7 @@ def _manifest(path: Path, rec: Recording, choice: TopicChoice, intr: Intrinsics 
         "ignore": opts.ignore}
     return {
         "frontdiag_version": __version__,
-        "versions": _versions(),
+        "versions": versions(),
         "created_unix_s": int(time.time()),
         "input": {"path": str(path.resolve()), "backend": rec.backend,
                   "size_bytes": _size(path), "start_ns": rec.start_ns, "end_ns": rec.end_ns},

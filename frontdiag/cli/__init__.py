@@ -14,7 +14,6 @@ from rich.console import Console
 from typer import Abort as _Abort
 from typer import Exit as _Exit
 
-from frontdiag import __version__
 from frontdiag.errors import (
     EXIT_INPUT,
     EXIT_INTERNAL,
@@ -57,7 +56,9 @@ _state = {"debug": False}
 
 def _version_callback(value: bool) -> None:
     if value:
-        typer.echo(f"frontdiag {__version__}")
+        from frontdiag.versions import version_text
+
+        typer.echo(version_text())
         raise typer.Exit(0)
 
 
