@@ -1,7 +1,7 @@
 """Versions of frontdiag and of the libraries whose numbers end up in its tables.
 
-Read from installed distribution metadata, so nothing heavy is imported: ``frontdiag --version``
-stays instant. OpenCV in particular changes FAST/ORB corner sets and RANSAC inlier counts between
+Read from installed distribution metadata, except OpenCV, whose version is read from the module
+that is actually loaded (an environment can shadow the installed wheel; 0.15 s to import). OpenCV changes FAST/ORB corner sets and RANSAC inlier counts between
 major versions (see docs/camera.md, "OpenCV versions"), so every result records which one made it.
 """
 
@@ -11,18 +11,17 @@ import importlib.metadata as md
 
 from frontdiag import __version__
 
-# distribution names in the order they are printed; the first OpenCV wheel found is reported
-_DISTRIBUTIONS = ("opencv-python-headless", "opencv-python", "opencv-contrib-python-headless",
-                  "opencv-contrib-python", "numpy", "small-gicp", "rosbags", "mcap", "pandas",
+# distribution names in the order they are printed, after OpenCV
+_DISTRIBUTIONS = ("numpy", "small-gicp", "rosbags", "mcap", "pandas",
                   "pyarrow", "faiss-cpu", "scipy", "typer", "rich")
 
 
 def versions() -> dict[str, str]:
     """frontdiag's version and each installed library it depends on, by distribution name."""
-    out = {"frontdiag": __version__}
+    import cv2
+
+    out = {"frontdiag": __version__, "opencv": cv2.__version__}
     for dist in _DISTRIBUTIONS:
-        if dist.startswith("opencv") and any(k.startswith("opencv") for k in out):
-            continue
         try:
             out[dist] = md.version(dist)
         except md.PackageNotFoundError:

@@ -17,7 +17,14 @@ def test_help_lists_commands(capsys) -> None:
 
 def test_version(capsys) -> None:
     assert main(["--version"]) == 0
-    assert "frontdiag 0." in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "frontdiag 0." in out
+    # the libraries whose numbers reach the tables are named with their versions
+    import cv2
+    import numpy
+
+    assert f"numpy {numpy.__version__}" in out
+    assert f"opencv {cv2.__version__}" in out
 
 
 def test_unknown_command_is_usage_error() -> None:
