@@ -27,6 +27,18 @@ class FrontdiagError(Exception):
         if hint is not None:
             self.hint = hint
 
+    def __reduce__(self) -> tuple[object, ...]:
+        # subclasses take other arguments than their message: rebuild from message + attributes
+        # (a fault met in a worker process crosses back to the caller pickled)
+        return _rebuild, (type(self), str(self), dict(self.__dict__))
+
+
+def _rebuild(cls: type[FrontdiagError], message: str, attrs: dict[str, object]) -> FrontdiagError:
+    err = cls.__new__(cls)
+    Exception.__init__(err, message)
+    err.__dict__.update(attrs)
+    return err
+
 
 class RecordingError(FrontdiagError):
     """A recording is missing, unreadable, truncated or of an unknown container."""

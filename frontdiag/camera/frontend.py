@@ -143,6 +143,28 @@ class CameraFrontend:
         self._prev = None
         self._kf = None
 
+    # ------------------------------------------------------------------ state (for windows)
+    def state_key(self) -> tuple[int, int] | None:
+        """What the rows of the following frames depend on, in comparable form.
+
+        The reference keyframe and the keyframe before it (-1 when tracks do not link them).
+        Every track, count and direction the frontend keeps is built from the frames since the
+        earlier of the two, which became a keyframe with fresh tracks; so two runs with the
+        same key after frame f hold the same state and give the same rows from f + 1 on (the
+        previous frame is f in both).
+        """
+        kf = self._kf
+        if kf is None:
+            return None
+        return kf.view.index, -1 if kf.parent is None else kf.parent.index
+
+    def get_state(self) -> tuple[Any, Any]:
+        """The frontend's state between frames (picklable), for handing a run on."""
+        return self._prev, self._kf
+
+    def set_state(self, state: tuple[Any, Any]) -> None:
+        self._prev, self._kf = state
+
     # ------------------------------------------------------------------ stages
     def _detect(self, frame: CameraFrame, row: dict[str, Any]) -> _View:
         gray = frame.gray

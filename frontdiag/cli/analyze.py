@@ -33,6 +33,8 @@ Examples:
 
   frontdiag analyze run.mcap --ratio 1.0 --no-mutual --ransac-iters 40  # your frontend's budget
 
+  frontdiag analyze long_run.mcap --jobs 2 --out results/   # both cores on one recording
+
 Exit codes: 0 nothing at or above --fail-on, 1 a gate failed, 2 bad input / usage / config,
 3 internal error, 130 interrupted.
 """
@@ -99,6 +101,9 @@ def analyze_cmd(
     as_json: bool = typer.Option(False, "--json",
                                  help="Print a machine-readable summary on stdout."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or table."),
+    jobs: int = typer.Option(1, "--jobs", "-j",
+                             help="Processes: a long recording is split into time windows "
+                                  "analysed in parallel (same table as one process)."),
 ) -> int:
     from rich.console import Console
 
@@ -120,6 +125,8 @@ def analyze_cmd(
         raise ConfigError(f"--ratio {ratio:g}: choose a value in (0, 1]")
     if ransac_iters < 1:
         raise ConfigError(f"--ransac-iters {ransac_iters}: need at least 1")
+    if jobs < 1:
+        raise ConfigError(f"--jobs {jobs}: need at least 1")
     out_dir = prepare_out_dir(out, [log]) if out is not None else None
     opts = AnalysisOptions(
         camera_topic=camera_topic, lidar_topic=lidar_topic, odom_topic=odom_topic,
@@ -130,7 +137,7 @@ def analyze_cmd(
         lidar_params=LidarParams(backend=lidar_backend),
         rules=not no_rules, rules_dir=str(rules_dir) if rules_dir else None,
         rules_overrides=str(overrides) if overrides else None, select=_split(select),
-        ignore=_split(ignore))
+        ignore=_split(ignore), jobs=jobs)
     limits = None
     if max_fraction:
         from frontdiag.verdicts import parse_max_fraction

@@ -1,0 +1,88 @@
+"""Decode one selected message into a record the frontends take (``CameraFrame``, ``LidarScan``).
+
+Errors name the topic and field and are counted by the caller's stream (``skip``); a message
+the deserialiser cannot parse becomes a :class:`~frontdiag.errors.DecodeError` too.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import replace
+from typing import Any, Protocol
+
+import numpy as np
+
+from frontdiag.errors import DecodeError
+from frontdiag.io.images import GrayConverter
+from frontdiag.io.readers import RawMessage, Recording
+from frontdiag.records import CameraFrame, LidarScan
+
+
+class StampSink(Protocol):
+    """What decoding reports to: the message's position, its stamp, and skipped messages."""
+
+    index: int
+
+    def stamp(self, msg: Any, log_ns: int) -> int: ...
+
+    def skip(self, exc: Exception) -> None: ...
+
+
+def header_stamp_ns(msg: Any) -> int:
+    st = msg.header.stamp
+    return int(st.sec) * 1_000_000_000 + int(st.nanosec)
+
+
+def odometry_pose(msg: Any) -> np.ndarray:
+    """4x4 pose from nav_msgs/Odometry."""
+    p = msg.pose.pose.position
+    q = msg.pose.pose.orientation
+    x, y, z, w = float(q.x), float(q.y), float(q.z), float(q.w)
+    n = x * x + y * y + z * z + w * w
+    s = 2.0 / n if n > 0 else 0.0
+    R = np.array([
+        [1 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w)],
+        [s * (x * y + z * w), 1 - s * (x * x + z * z), s * (y * z - x * w)],
+        [s * (x * z - y * w), s * (y * z + x * w), 1 - s * (x * x + y * y)],
+    ])
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = [float(p.x), float(p.y), float(p.z)]
+    return T
+
+
+def decode_camera(rec: Recording, raw: RawMessage, stream: StampSink,
+                  conv: GrayConverter) -> CameraFrame | None:
+    t0 = time.perf_counter()
+    try:
+        msg = rec.deserialize(raw)
+        t_ns = stream.stamp(msg, raw.log_ns)
+        gray, encoding = conv(msg, raw.msgtype)
+    except DecodeError as exc:
+        stream.skip(exc)
+        return None
+    except Exception as exc:  # a message the deserialiser cannot parse
+        stream.skip(DecodeError(raw.topic, "message", f"undecodable ({exc})"))
+        return None
+    ms = (time.perf_counter() - t0) * 1e3
+    return CameraFrame(index=stream.index, t_ns=t_ns, log_ns=raw.log_ns, topic=raw.topic,
+                       gray=gray, encoding=encoding, ms_decode=ms)
+
+
+def decode_lidar(rec: Recording, raw: RawMessage, stream: StampSink) -> LidarScan | None:
+    from frontdiag.lidar.decode import decode_laserscan, decode_pointcloud2
+
+    t0 = time.perf_counter()
+    try:
+        msg = rec.deserialize(raw)
+        t_ns = stream.stamp(msg, raw.log_ns)
+        fn = decode_laserscan if raw.msgtype.endswith("LaserScan") else decode_pointcloud2
+        scan = fn(msg, topic=raw.topic, index=stream.index, log_ns=raw.log_ns)
+    except DecodeError as exc:
+        stream.skip(exc)
+        return None
+    except Exception as exc:
+        stream.skip(DecodeError(raw.topic, "message", f"undecodable ({exc})"))
+        return None
+    # one stamp rule for every sensor: header stamp, log time when the stamp is zero
+    return replace(scan, t_ns=t_ns, ms_decode=(time.perf_counter() - t0) * 1e3)

@@ -1,0 +1,200 @@
+"""One recording on several processes: time windows of camera frames analysed in parallel.
+
+The camera frames are split into ``jobs`` consecutive windows. Each window's frontend starts a
+short warm-up before the window (``OVERLAP_KEYFRAMES`` keyframe intervals) and drops those rows.
+The frontend keeps nothing older than its reference keyframe and the keyframe before it
+(:meth:`~frontdiag.camera.frontend.CameraFrontend.state_key`), so once the warm-up and the run
+of the previous window pick the same two keyframes, every later row is the row a single pass
+gives. That is checked, not assumed: both runs record the state key after each frame of the
+overlap, and a window whose warm-up did not meet the previous window's state (a camera standing
+still keeps its keyframes 20 frames apart at any phase) is re-run from the previous window's
+hand-over state until it meets its own first run, whose rows are kept from there. The table of a
+parallel run is therefore the table of a serial run, timing columns aside.
+
+LiDAR is not windowed: its local map has no bounded history to warm up; when the recording has a
+LiDAR topic, one more process runs the LiDAR frontend over the whole selection.
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing as mp
+from concurrent.futures import Future, ProcessPoolExecutor
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from frontdiag.io.readers import Recording, open_recording
+from frontdiag.io.topics import TopicChoice
+from frontdiag.records import Intrinsics
+from frontdiag.runner import (
+    FrameWindow,
+    ProgressFn,
+    SensorStream,
+    StreamRun,
+    TopicStats,
+    run_stream,
+)
+
+log = logging.getLogger(__name__)
+
+OVERLAP_KEYFRAMES = 3  # warm-up length in keyframe intervals (kf_max_frames frames each)
+MIN_WINDOW_FRAMES = 50  # below this per window, one process is faster than the warm-ups
+
+
+def plan_windows(n_frames: int, jobs: int, overlap: int) -> list[FrameWindow]:
+    """``jobs`` consecutive windows over ``n_frames`` camera messages, each warmed up on up to
+    ``overlap`` messages before it (fewer windows when the recording is short)."""
+    k = max(1, min(jobs, n_frames // max(MIN_WINDOW_FRAMES, overlap)))
+    bounds = [round(i * n_frames / k) for i in range(k + 1)]
+    return [FrameWindow(warm_from=max(0, bounds[i] - overlap), own_from=bounds[i],
+                        own_to=None if i == k - 1 else bounds[i + 1]) for i in range(k)]
+
+
+def _context() -> Any:
+    # forkserver: workers fork from a clean server process, not from a parent that may hold
+    # threads (progress bars, OpenCV's pool); the frontend modules are imported there once
+    ctx = mp.get_context("forkserver")
+    ctx.set_forkserver_preload(["frontdiag.runner", "frontdiag.camera.frontend"])
+    return ctx
+
+
+def _task(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
+          frames: FrameWindow | None, resume: Any = None, until_keys: dict[int, Any] | None = None
+          ) -> StreamRun:
+    """One window (or the whole LiDAR stream) in a worker process."""
+    import cv2
+
+    cv2.setNumThreads(1)  # one core per worker: the workers are the parallelism
+    until = None if until_keys is None else (lambda f, key: until_keys.get(f) == key)
+    with open_recording(path) as rec:
+        run = run_stream(rec, choice, opts, intr, frames=frames, resume=resume, until=until,
+                         record_keys=frames is not None,
+                         want_end_state=frames is not None)
+        reader_fault(path, rec, run)
+    return run
+
+
+def reader_fault(path: Path, rec: Recording, run: StreamRun) -> None:
+    """Damage the reader met (and skipped past quietly) becomes the pass's fault."""
+    from frontdiag.errors import RecordingError
+
+    if rec.fault is not None and run.fault is None:
+        run.fault = RecordingError(path, rec.fault.message.split(": ", 1)[-1],
+                                   hint="the frames before the damage were analysed and kept")
+
+
+def run_windows(path: Path, rec: Recording, choice: TopicChoice, opts: Any,
+                intr: Intrinsics | None, *, progress: ProgressFn | None = None,
+                expected: int | None = None) -> StreamRun:
+    """The pass of :func:`frontdiag.runner.run_stream`, computed by ``opts.jobs`` processes."""
+    from frontdiag.camera.frontend import CameraParams
+
+    n_cam = next((t.count for t in rec.topics if t.topic == choice.camera), None)
+    cparams = opts.camera_params or CameraParams()
+    overlap = OVERLAP_KEYFRAMES * cparams.kf_max_frames * max(opts.stride, 1)
+    windows = plan_windows(n_cam, opts.jobs, overlap) if n_cam else []
+    if len(windows) < 2 or opts.max_frames:
+        # nothing to split (no camera, a short one, or a frame budget counted from the start)
+        log.info("one window: analysing %s in one process", path)
+        return run_stream(rec, choice, opts, intr, progress=progress, expected=expected)
+    cam_choice = replace(choice, lidar=None, lidar_type=None, odometry=None)
+    lid_choice = replace(choice, camera=None, camera_type=None, camera_info=None)
+    runs: list[StreamRun | None] = [None] * len(windows)
+    lid_run: StreamRun | None = None
+    interrupted = False
+    with ProcessPoolExecutor(max_workers=opts.jobs, mp_context=_context()) as pool:
+        futs: dict[Future[StreamRun], int] = {
+            pool.submit(_task, path, cam_choice, opts, intr, w): i
+            for i, w in enumerate(windows)}
+        lid_fut = pool.submit(_task, path, lid_choice, opts, intr, None) if choice.lidar else None
+        done = 0
+        try:
+            from concurrent.futures import as_completed
+
+            all_futs: list[Future[StreamRun]] = [*futs, *([lid_fut] if lid_fut else [])]
+            for fut in as_completed(all_futs):
+                run = fut.result()
+                if fut is lid_fut:
+                    lid_run = run
+                else:
+                    runs[futs[fut]] = run
+                done += len(run.rows)
+                if progress:
+                    progress(done, expected or None)
+        except KeyboardInterrupt:
+            interrupted = True
+            pool.shutdown(wait=False, cancel_futures=True)
+    cam_rows, cam_stream, fault, cut = _stitch(path, cam_choice, opts, intr, windows, runs)
+    rows = list(cam_rows)
+    lid_stream = None
+    if lid_run is not None:
+        rows += lid_run.rows
+        lid_stream = lid_run.lid
+        fault = fault or lid_run.fault
+        interrupted = interrupted or lid_run.interrupted
+    return StreamRun(rows, cam_stream, lid_stream, fault=fault,
+                     interrupted=interrupted or cut)
+
+
+def _stitch(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
+            windows: list[FrameWindow], runs: list[StreamRun | None]
+            ) -> tuple[list[dict[str, Any]], SensorStream | None, Any, bool]:
+    """Camera rows and counts of consecutive windows, in order, as one pass would give them.
+
+    Stops at the first window that is missing (interrupted), faulted or was interrupted: what
+    follows it would not be in a single pass's result either.
+    """
+    rows: list[dict[str, Any]] = []
+    merged: SensorStream | None = None
+    prev: StreamRun | None = None
+    for i, (w, run) in enumerate(zip(windows, runs, strict=True)):
+        if run is None:
+            return rows, merged, None, True
+        if prev is not None and not _met(prev, run, w):
+            run = _rerun(path, choice, opts, intr, w, prev, run)
+        rows += run.rows
+        merged = _merge_counts(merged, run.cam)
+        if run.fault is not None or run.interrupted:
+            return rows, merged, run.fault, run.interrupted
+        prev = run
+        log.debug("window %d: frames %d-%s, %d rows", i, w.own_from, w.own_to, len(run.rows))
+    return rows, merged, None, False
+
+
+def _met(prev: StreamRun, run: StreamRun, w: FrameWindow) -> bool:
+    """Whether the warm-up of ``run`` reached the state ``prev`` had at some frame before the
+    window, after which both give the same rows."""
+    return any(prev.keys.get(f) == key for f, key in run.keys.items() if f < w.own_from)
+
+
+def _rerun(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
+           w: FrameWindow, prev: StreamRun, first: StreamRun) -> StreamRun:
+    """Window ``w`` continued from the previous window's end state, until it meets its own
+    first run; that run's rows and end state are right from there on."""
+    log.info("window at frame %d: warm-up did not meet the previous window; continuing it "
+             "from the previous window's state", w.own_from)
+    fix = _task(path, choice, opts, intr, FrameWindow(w.own_from, w.own_from, w.own_to),
+                resume=prev.end_state, until_keys=first.keys)
+    if fix.stopped_at is None:  # never met: the continued run is the window
+        fix.cam = first.cam  # counts do not depend on the frontend's state
+        return fix
+    rows = fix.rows + [r for r in first.rows if r["frame"] > fix.stopped_at]
+    return replace(first, rows=rows, keys={**first.keys, **fix.keys})
+
+
+def _merge_counts(acc: SensorStream | None, cur: SensorStream | None) -> SensorStream | None:
+    """Counts of consecutive windows added up (each window counted only what it owns)."""
+    if cur is None or acc is None:
+        return cur if acc is None else acc
+    a, b = acc.stats, cur.stats
+    acc.stats = TopicStats(
+        messages=a.messages + b.messages, analysed=a.analysed + b.analysed,
+        skipped_undecodable=a.skipped_undecodable + b.skipped_undecodable,
+        first_error=a.first_error if a.first_error is not None else b.first_error,
+        non_monotonic_stamps=a.non_monotonic_stamps + b.non_monotonic_stamps,
+        zero_stamps=a.zero_stamps + b.zero_stamps,
+        last_t_ns=b.last_t_ns if b.last_t_ns is not None else a.last_t_ns,
+        gaps=a.gaps + b.gaps)
+    acc.index = cur.index
+    return acc

@@ -1,0 +1,338 @@
+"""The streaming loop that feeds decoded frames to the frontends, one time window at a time.
+
+:func:`run_stream` reads messages in log-time order, selects them (``--start``/``--end``,
+stride, max frames), decodes one at a time and hands each record to its frontend; only the
+per-frame rows are kept, never the pixels or points. It can be handed a window of camera frames
+(:class:`FrameWindow`): the frontend starts at ``warm_from`` and runs through a warm-up whose rows
+are dropped, and the rows and counts from ``own_from`` on belong to the window. Parallel windows
+and fleets sit above this loop (:mod:`frontdiag.parallel`, :mod:`frontdiag.fleet`); a frontend
+stays a pure, sequential function of its frames.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from typing import Any
+
+from frontdiag.errors import DecodeError, FrontdiagError
+from frontdiag.io.decode import decode_camera, decode_lidar, header_stamp_ns, odometry_pose
+from frontdiag.io.images import GrayConverter
+from frontdiag.io.readers import Recording
+from frontdiag.io.topics import TopicChoice
+from frontdiag.records import CameraFrame, Intrinsics, LidarScan
+from frontdiag.timing import GapDetector
+
+log = logging.getLogger(__name__)
+
+GAP_STATUS = "after_gap"  # first row after a gap: the frontend started afresh (no reference)
+
+ProgressFn = Callable[[int, int | None], None]
+"""progress(frames_done, frames_expected_or_None)."""
+
+
+@dataclass
+class TopicStats:
+    messages: int = 0
+    analysed: int = 0
+    skipped_undecodable: int = 0
+    first_error: str | None = None
+    non_monotonic_stamps: int = 0
+    zero_stamps: int = 0
+    last_t_ns: int | None = None
+    gaps: int = 0  # gaps in the recording after which the frontend started afresh
+
+
+@dataclass(frozen=True)
+class FrameWindow:
+    """Camera frames (message indices on the topic) one run covers.
+
+    The frontend starts at ``warm_from``; rows and counts start at ``own_from``; the run stops
+    before ``own_to`` (None: the end of the selection).
+    """
+
+    warm_from: int
+    own_from: int
+    own_to: int | None = None
+
+
+class SensorStream:
+    """Selection (stride, max frames, frame window), stamps and skip counting for one topic."""
+
+    def __init__(self, topic: str, opts: Any, frames: FrameWindow | None = None) -> None:
+        self.topic = topic
+        self.opts = opts
+        self.frames = frames
+        self.stats = TopicStats()
+        self.index = -1
+        self.in_window = 0
+        self.window_start: int | None = None
+        self.gaps = GapDetector()
+        self.owned = True  # the current message counts (not warm-up)
+
+    def analyse(self, record: CameraFrame | LidarScan, frontend: Any, sensor: str,
+                rec_start: int) -> dict[str, Any]:
+        """One table row for a decoded record; the frontend starts afresh after a gap."""
+        gap = self.gaps.observe(record.t_ns)
+        if gap:
+            frontend.reset()
+            if self.owned:
+                self.stats.gaps += 1
+        row = make_row(frontend.process(record), record, sensor, rec_start)
+        if gap:
+            row["status"] = GAP_STATUS
+        if self.owned:
+            self.stats.analysed += 1
+        return row
+
+    def admit(self, log_ns: int) -> bool:
+        """Called for every message on the topic; True when it is selected for analysis.
+
+        Messages before the --start window are counted but not decoded, so ``frame`` numbers
+        are the same whatever window is analysed; the stride counts from the window start.
+        """
+        self.index += 1
+        if self.window_start is not None and log_ns < self.window_start:
+            return False
+        self.in_window += 1
+        fw = self.frames
+        if fw is not None and self.index < fw.warm_from:
+            return False
+        self.owned = fw is None or self.index >= fw.own_from
+        if self.owned:
+            self.stats.messages += 1
+        if (self.in_window - 1) % max(self.opts.stride, 1):
+            return False
+        return not (self.opts.max_frames and self.stats.analysed >= self.opts.max_frames)
+
+    def past_end(self) -> bool:
+        """The next message on the topic lies past the frame window."""
+        fw = self.frames
+        return fw is not None and fw.own_to is not None and self.index + 1 >= fw.own_to
+
+    @property
+    def full(self) -> bool:
+        return bool(self.opts.max_frames and self.stats.analysed >= self.opts.max_frames)
+
+    def stamp(self, msg: Any, log_ns: int) -> int:
+        try:
+            t = header_stamp_ns(msg)
+        except AttributeError:
+            t = 0
+        if t == 0:
+            if self.owned:
+                self.stats.zero_stamps += 1
+            t = log_ns
+        if self.stats.last_t_ns is not None and t <= self.stats.last_t_ns and self.owned:
+            self.stats.non_monotonic_stamps += 1
+        self.stats.last_t_ns = t
+        return t
+
+    def skip(self, exc: Exception) -> None:
+        if not self.owned:
+            return
+        self.stats.skipped_undecodable += 1
+        if self.stats.first_error is None:
+            self.stats.first_error = str(exc)
+
+
+def time_window(rec: Recording, opts: Any) -> tuple[int | None, int | None]:
+    """--start/--end as log times (ns), validated."""
+    start = rec.start_ns
+    s = e = None
+    if opts.start_s is not None:
+        if opts.start_s < 0:
+            raise FrontdiagError(f"--start {opts.start_s}: must be >= 0 seconds")
+        s = (start or 0) + round(opts.start_s * 1e9)
+    if opts.end_s is not None:
+        if opts.start_s is not None and opts.end_s <= opts.start_s:
+            raise FrontdiagError(f"--end {opts.end_s} must be after --start {opts.start_s}")
+        e = (start or 0) + round(opts.end_s * 1e9)
+    return s, e
+
+
+def iter_camera_frames(rec: Recording, topic: str, msgtype: str, opts: Any = None,
+                       stream: SensorStream | None = None) -> Iterator[CameraFrame]:
+    """Decode the selected frames of one image topic (used by the decode-only benchmark)."""
+    if opts is None:
+        from frontdiag.api import AnalysisOptions
+
+        opts = AnalysisOptions()
+    stream = stream or SensorStream(topic, opts)
+    conv = GrayConverter(topic)
+    s, e = time_window(rec, opts)
+    stream.window_start = s
+    for raw in rec.messages([topic], None, e):
+        if stream.full:
+            break
+        if not stream.admit(raw.log_ns):
+            continue
+        frame = decode_camera(rec, raw, stream, conv)
+        if frame is not None:
+            stream.stats.analysed += 1
+            yield frame
+
+
+@dataclass
+class StreamRun:
+    """What one pass of :func:`run_stream` produced."""
+
+    rows: list[dict[str, Any]]
+    cam: SensorStream | None
+    lid: SensorStream | None
+    fault: FrontdiagError | None = None
+    interrupted: bool = False
+    keys: dict[int, Any] = field(default_factory=dict)  # camera frame -> state key after it
+    stopped_at: int | None = None  # camera frame after which ``until`` stopped the pass
+    end_state: Any = None  # camera hand-over state at the end (when asked)
+
+
+def camera_key(front: Any, stream: SensorStream) -> Any:
+    """Everything camera rows after this frame depend on, in comparable form: the frontend's
+    state key and the gap detector's history."""
+    g = stream.gaps
+    return (front.state_key(), g._last, tuple(g._dts))
+
+
+def camera_state(front: Any, stream: SensorStream) -> Any:
+    """A picklable hand-over of the camera frontend and its gap detector."""
+    g = stream.gaps
+    return (front.get_state(), g._last, list(g._dts), stream.stats.last_t_ns)
+
+
+def _restore_camera(front: Any, stream: SensorStream, state: Any) -> None:
+    fstate, last, dts, last_t = state
+    front.set_state(fstate)
+    stream.gaps._last, stream.gaps._dts = last, list(dts)
+    stream.stats.last_t_ns = last_t
+
+
+def prime_converter(rec: Recording, topic: str, conv: GrayConverter, opts: Any) -> None:
+    """Fix a mono16 converter's shift from the first frame of the selection, as a run from the
+    start does (a window that starts later must scale its frames the same way)."""
+    s, e = time_window(rec, opts)
+    for raw in rec.messages([topic], s, e):
+        try:
+            conv(rec.deserialize(raw), raw.msgtype)
+        except Exception:  # the run itself reports undecodable frames
+            continue
+        return
+
+
+def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics | None, *,
+               progress: ProgressFn | None = None, expected: int | None = None,
+               frames: FrameWindow | None = None, resume: Any = None,
+               until: Callable[[int, Any], bool] | None = None,
+               record_keys: bool = False, want_end_state: bool = False) -> StreamRun:
+    """One sequential pass over the selected messages of ``rec``.
+
+    ``frames`` restricts the camera to a window of frames (warm-up rows dropped); ``resume``
+    starts the camera frontend from a hand-over state (:func:`camera_state`); ``until(frame,
+    key)`` stops the pass after a camera frame; ``record_keys`` keeps the camera state key after
+    every frame. Faults and Ctrl-C end the pass and keep what was computed.
+    """
+    rows: list[dict[str, Any]] = []
+    cam_front = lid_front = None
+    cam_stream = lid_stream = None
+    conv = None
+    if choice.camera:
+        from frontdiag.camera.frontend import CameraFrontend, CameraParams
+
+        cam_front = CameraFrontend(opts.camera_params or CameraParams(), intr)
+        cam_stream = SensorStream(choice.camera, opts, frames)
+        conv = GrayConverter(choice.camera)
+        if frames is not None and frames.warm_from > 0:
+            prime_converter(rec, choice.camera, conv, opts)
+        if resume is not None:
+            _restore_camera(cam_front, cam_stream, resume)
+    if choice.lidar:
+        from frontdiag.lidar.frontend import LidarFrontend, LidarParams
+
+        lid_front = LidarFrontend(opts.lidar_params or LidarParams())
+        lid_stream = SensorStream(choice.lidar, opts)
+    out = StreamRun(rows, cam_stream, lid_stream)
+    rec_start = rec.start_ns or 0
+    s, e = time_window(rec, opts)
+    read_topics = [t for t in (choice.camera, choice.lidar, choice.odometry) if t]
+    for stream in (cam_stream, lid_stream):
+        if stream is not None:
+            stream.window_start = s
+    done = 0
+    try:
+        for raw in rec.messages(read_topics, None, e):
+            if raw.topic == choice.odometry and lid_front is not None:
+                try:
+                    msg = rec.deserialize(raw)
+                    lid_front.add_odometry(header_stamp_ns(msg), odometry_pose(msg))
+                except Exception as exc:
+                    log.debug("odometry message skipped: %s", exc)
+                continue
+            if raw.topic == choice.camera and cam_stream and cam_front and conv:
+                if cam_stream.full and (lid_stream is None or lid_stream.full):
+                    break
+                if cam_stream.past_end():
+                    break
+                if not cam_stream.admit(raw.log_ns):
+                    continue
+                frame = decode_camera(rec, raw, cam_stream, conv)
+                if frame is None:
+                    check_all_failed(cam_stream)
+                    continue
+                row = cam_stream.analyse(frame, cam_front, "camera", rec_start)
+                if cam_stream.owned:
+                    rows.append(row)
+                if record_keys or until is not None:
+                    key = camera_key(cam_front, cam_stream)
+                    if record_keys:
+                        out.keys[frame.index] = key
+                    if until is not None and until(frame.index, key):
+                        out.stopped_at = frame.index
+                        break
+                if not cam_stream.owned:
+                    continue
+            elif raw.topic == choice.lidar and lid_stream and lid_front:
+                if lid_stream.full and (cam_stream is None or cam_stream.full):
+                    break
+                if not lid_stream.admit(raw.log_ns):
+                    continue
+                scan = decode_lidar(rec, raw, lid_stream)
+                if scan is None:
+                    check_all_failed(lid_stream)
+                    continue
+                rows.append(lid_stream.analyse(scan, lid_front, "lidar", rec_start))
+            else:
+                continue
+            done += 1
+            if progress:
+                progress(done, expected or None)
+    except KeyboardInterrupt:
+        out.interrupted = True
+    except FrontdiagError as exc:
+        out.fault = exc
+    if want_end_state and cam_front is not None and cam_stream is not None:
+        out.end_state = camera_state(cam_front, cam_stream)
+    return out
+
+
+def check_all_failed(stream: SensorStream) -> None:
+    """Stop early when a topic cannot be decoded at all (e.g. an unknown encoding)."""
+    st = stream.stats
+    if st.analysed == 0 and st.skipped_undecodable >= 10:
+        raise DecodeError(stream.topic, "message",
+                          f"the first {st.skipped_undecodable} messages could not be decoded "
+                          f"({st.first_error})")
+
+
+def make_row(metrics: dict[str, Any], rec: CameraFrame | LidarScan, sensor: str,
+             rec_start: int) -> dict[str, Any]:
+    """The identifying columns, the frontend's metrics, and decode time added into ms_total."""
+    row: dict[str, Any] = {"frame": rec.index, "t_ns": rec.t_ns,
+                           "t_rel_s": (rec.log_ns - rec_start) / 1e9, "sensor": sensor,
+                           "topic": rec.topic}
+    row.update(metrics)
+    row["ms_decode"] = rec.ms_decode
+    row["ms_total"] = float(metrics.get("ms_total", 0.0)) + rec.ms_decode
+    if isinstance(rec, CameraFrame):
+        row["width"], row["height"] = int(rec.gray.shape[1]), int(rec.gray.shape[0])
+    return row
