@@ -80,11 +80,12 @@ def _register() -> None:
         eval_,
         explain,
         info,
+        loops,
         rules,
         simulate,
     )
 
-    for module in (analyze, info, explain, rules, simulate, eval_, budget):
+    for module in (analyze, info, explain, rules, simulate, eval_, budget, loops):
         module.register(app)
 
 

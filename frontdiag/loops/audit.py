@@ -1,0 +1,216 @@
+"""The loop-closure audit: every loop tested before optimisation, one verdict each.
+
+    graph = read_graph("run.g2o")
+    result = audit(graph)                 # per-loop table, verdicts, summary
+    result.table                          # what loops.parquet holds
+
+Order of the tests (each rule in rules/loops/loops.toml):
+
+1. FD-LOP-001, chain: the loop against the odometry chain between its poses (χ²).
+2. FD-LOP-002, pairs: loops that survive 1 are tested in pairs (PCM); the largest consistent
+   set is kept.
+3. FD-LOP-003, map: the odometry plus the surviving loops are optimised and every loop is
+   re-tested against that map with the map's relative covariance (``verify=True``).
+4. FD-LOP-004, untestable: a loop that nothing confirms and that would move the map.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from frontdiag.loops import pcm
+from frontdiag.loops.chain import Chain, build_chain
+from frontdiag.loops.graph import PoseGraph
+from frontdiag.loops.rules import LoopRules, load_loop_rules
+from frontdiag.loops.stats import LoopStats, loop_stats
+
+log = logging.getLogger(__name__)
+
+TABLE_COLUMNS = ["loop", "i", "j", "residual_m", "residual_deg", "chi2", "p_value", "f",
+                 "displacement_m", "group", "verdict", "rule", "reason"]
+
+
+@dataclass
+class LoopAudit:
+    graph: PoseGraph
+    rules: LoopRules
+    chain: Chain
+    stats: LoopStats
+    table: pd.DataFrame
+    """One row per loop: the columns of loops.parquet."""
+    odometry: np.ndarray
+    n_pairs: int = 0
+    n_conflicts: int = 0
+    timings: dict[str, float] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    map_poses: np.ndarray | None = None
+
+    def kept_edges(self) -> np.ndarray:
+        """Edges (odometry and loops) of the graph without the refuted loops."""
+        keep = self.odometry.copy()
+        keep[self.table["edge"].to_numpy()[self.table["verdict"].to_numpy() != "fail"]] = True
+        return keep
+
+
+def _calibration_note(t: pd.DataFrame, k: int) -> str | None:
+    chi = t["chi2"].to_numpy(dtype=float)
+    chi = chi[np.isfinite(chi)]
+    if chi.size < 20:
+        return None
+    ratio = float(np.median(chi)) / pcm.threshold(k, 0.5)
+    if ratio < 0.1:
+        return (f"the median loop χ² is {ratio:.2g}× what correct covariances give: the file's "
+                "information looks too small (square-root information? try --sqrt-info), so "
+                "the chain test is weak")
+    if ratio > 10:
+        return (f"the median loop χ² is {ratio:.2g}× what correct covariances give: the file's "
+                "information looks too large (or squared), so true loops may be refused")
+    return None
+
+
+def audit(graph: PoseGraph, rules: LoopRules | None = None, *, odom_max_gap: int = 1,
+          verify: bool = False,
+          progress: Callable[[str], None] | None = None) -> LoopAudit:
+    """Test every loop of ``graph`` (see the module doc) and return the per-loop table."""
+    rules = rules or load_loop_rules()
+    say = progress or (lambda _s: None)
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    odo = graph.odometry_mask(odom_max_gap)
+    loops = np.flatnonzero(~odo)
+    chain = build_chain(graph, odo)
+    st = loop_stats(graph, chain, loops)
+    timings["chain_s"] = time.perf_counter() - t0
+    say(f"chain test of {loops.size} loops")
+    k = graph.k
+    t = st.table.copy()
+    t.insert(0, "loop", np.arange(len(t), dtype=np.int64))
+    n = len(t)
+    verdict = np.full(n, "ok", dtype=object)
+    rule = np.full(n, "", dtype=object)
+    reason = np.full(n, "", dtype=object)
+
+    r1 = rules.by_statistic("chi2")
+    thr1 = pcm.threshold(k, float(r1.param("p_alarm")))
+    chi = t["chi2"].to_numpy(dtype=float)
+    bad1 = np.isfinite(chi) & (chi > thr1)
+    verdict[bad1], rule[bad1] = r1.severity, r1.id
+    for i in (int(x) for x in np.flatnonzero(bad1)):
+        reason[i] = (f"contradicts the odometry chain: residual {t.residual_m.iat[i]:.2f} m / "
+                     f"{t.residual_deg.iat[i]:.1f}° against chain σ {t.chain_sigma_m.iat[i]:.2f} m"
+                     f", χ²={chi[i]:.3g} > {thr1:.3g}")
+
+    # --- pairs (PCM) ------------------------------------------------------------------------
+    t1 = time.perf_counter()
+    r2 = rules.by_statistic("pcm")
+    a, b = graph.src[loops], graph.dst[loops]
+    pairs = pcm.candidate_pairs(a, b, int(r2.param("window")))
+    alive = ~bad1
+    pairs = pairs[alive[pairs[:, 0]] & alive[pairs[:, 1]]]
+    say(f"pairwise consistency of {pairs.shape[0]} candidate pairs")
+    pchi = pcm.pair_chi2(graph, chain, loops, pairs)
+    thr2 = pcm.threshold(k, float(r2.param("p_pair")))
+    tested = np.isfinite(pchi)
+    conflict = pairs[tested & (pchi > thr2)]
+    consistent = pairs[tested & (pchi <= thr2)]
+    group = pcm.consistency_groups(n, consistent)
+    keep = pcm.max_consistent_set(n, conflict)
+    timings["pcm_s"] = time.perf_counter() - t1
+    size = np.bincount(group[group >= 0], minlength=1) if (group >= 0).any() else np.zeros(1)
+    gsize = np.where(group >= 0, size[np.maximum(group, 0)], 1)
+    min_group = int(r2.param("min_group"))
+    lost = ~keep & alive
+    nbr: dict[int, list[int]] = {}
+    for p, q in conflict:
+        nbr.setdefault(int(p), []).append(int(q))
+        nbr.setdefault(int(q), []).append(int(p))
+    for i in (int(x) for x in np.flatnonzero(lost)):
+        winners = [w for w in nbr.get(int(i), []) if keep[w]]
+        wsize = max((int(gsize[w]) for w in winners), default=0)
+        if wsize >= min_group:
+            verdict[i], rule[i] = r2.severity, r2.id
+            reason[i] = (f"inconsistent with {len(winners)} loop(s) of consistent group "
+                         f"{int(group[winners[0]])} ({wsize} loops), e.g. loop {winners[0]}")
+        else:
+            verdict[i], rule[i] = "warn", r2.id
+            reason[i] = (f"conflicts with loop {winners[0] if winners else '?'}; neither has "
+                         "support from other loops")
+    t["group"] = group
+    t["group_size"] = gsize.astype(np.int64)
+    t["n_conflicts"] = np.bincount(conflict.ravel(), minlength=n) if conflict.size else 0
+    t["n_consistent"] = (np.bincount(consistent.ravel(), minlength=n)
+                         if consistent.size else 0)
+
+    result = LoopAudit(graph=graph, rules=rules, chain=chain, stats=st, table=t, odometry=odo,
+                       n_pairs=int(pairs.shape[0]), n_conflicts=int(conflict.shape[0]),
+                       timings=timings)
+    _finish(result, verdict, rule, reason)
+    if verify and n:
+        from frontdiag.loops.verify import verify_against_map
+
+        t2 = time.perf_counter()
+        say("re-testing the loops against the map of the verified loops")
+        verify_against_map(result)
+        timings["map_s"] = time.perf_counter() - t2
+    _untestable(result)
+    note = _calibration_note(result.table, k)
+    if note:
+        result.notes.append(note)
+    timings["total_s"] = time.perf_counter() - t0
+    return result
+
+
+def _finish(result: LoopAudit, verdict: np.ndarray, rule: np.ndarray,
+            reason: np.ndarray) -> None:
+    t = result.table
+    t["verdict"] = verdict.astype(str)
+    t["rule"] = rule.astype(str)
+    t["reason"] = reason.astype(str)
+
+
+def _untestable(result: LoopAudit) -> None:
+    """FD-LOP-004: loops still 'ok' that no test could confirm and that would move the map."""
+    r4 = result.rules.by_statistic("untestable")
+    t = result.table
+    fold_m = float(r4.param("fold_m"))
+    confirmed = t["chain_confirms"] if "chain_confirms" in t else pd.Series(False, index=t.index)
+    lone = ((t["verdict"] == "ok") & ~t["chain_ok"] & (t["group_size"] < 2)
+            & ~confirmed.astype(bool))
+    disp = t["displacement_m"].fillna(np.inf)
+    hit = lone & (disp > fold_m)
+    t.loc[hit, "verdict"] = r4.severity
+    t.loc[hit, "rule"] = r4.id
+    t.loc[hit, "reason"] = "no odometry chain joins its poses and no other loop confirms it"
+
+
+def summary(result: LoopAudit, top: int = 10) -> dict[str, Any]:
+    """Counts, the rules that fired, and the refuted loops ranked by the displacement they cause."""
+    t = result.table
+    counts = t["verdict"].value_counts()
+    flagged = t[t["verdict"] != "ok"].sort_values(["displacement_m", "chi2"],
+                                                  ascending=False, na_position="last")
+    cols = ["loop", "i", "j", "residual_m", "residual_deg", "chi2", "f", "displacement_m",
+            "verdict", "rule", "reason"]
+    return {
+        "graph": result.graph.path,
+        "dim": result.graph.dim,
+        "vertices": result.graph.n_vertices,
+        "edges": result.graph.n_edges,
+        "odometry": int(result.odometry.sum()),
+        "loops": len(t),
+        "verdicts": {k: int(counts.get(k, 0)) for k in ("ok", "warn", "fail")},
+        "rules": {r.id: int((t["rule"] == r.id).sum()) for r in result.rules.rule},
+        "pairs_tested": result.n_pairs,
+        "pair_conflicts": result.n_conflicts,
+        "link_stiffness_m2": result.stats.link_stiffness,
+        "timings_s": result.timings,
+        "notes": result.graph.notes + result.notes,
+        "worst": flagged.head(top)[cols].to_dict(orient="records"),
+    }

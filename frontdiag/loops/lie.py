@@ -1,0 +1,134 @@
+"""SE(2) / SE(3) in homogeneous matrices, batched over a leading axis.
+
+Tangent vectors are ordered translation first, rotation last: (x, y, θ) in 2D and
+(x, y, z, φx, φy, φz) in 3D, the order of g2o's information matrices. Perturbations are on the
+right, ``T_true = T · Exp(ξ)`` (g2o's and GTSAM's convention for relative-pose edges), so a
+covariance lives in the frame of the pose it perturbs and moves between frames with the adjoint:
+``X · Exp(ξ) = Exp(Ad(X) ξ) · X``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial.transform import Rotation
+
+F = NDArray[np.float64]
+
+
+def tangent_dim(d: int) -> int:
+    """Tangent dimension of SE(d): 3 for d = 2, 6 for d = 3."""
+    return 3 if d == 2 else 6
+
+
+def se2(x: F, y: F, theta: F) -> F:
+    """(n,) arrays -> (n, 3, 3) homogeneous matrices."""
+    n = np.shape(x)[0]
+    c, s = np.cos(theta), np.sin(theta)
+    out = np.zeros((n, 3, 3))
+    out[:, 0, 0], out[:, 0, 1], out[:, 0, 2] = c, -s, x
+    out[:, 1, 0], out[:, 1, 1], out[:, 1, 2] = s, c, y
+    out[:, 2, 2] = 1.0
+    return out
+
+
+def se3(t: F, quat_xyzw: F) -> F:
+    """(n, 3) translations and (n, 4) unit quaternions (x, y, z, w) -> (n, 4, 4)."""
+    n = t.shape[0]
+    out = np.zeros((n, 4, 4))
+    out[:, :3, :3] = Rotation.from_quat(quat_xyzw).as_matrix()
+    out[:, :3, 3] = t
+    out[:, 3, 3] = 1.0
+    return out
+
+
+def inv(T: F) -> F:
+    """Inverse of rigid transforms (..., d+1, d+1)."""
+    d = T.shape[-1] - 1
+    R = T[..., :d, :d]
+    t = T[..., :d, d]
+    out = np.zeros_like(T)
+    Rt = np.swapaxes(R, -1, -2)
+    out[..., :d, :d] = Rt
+    out[..., :d, d] = -np.einsum("...ij,...j->...i", Rt, t)
+    out[..., d, d] = 1.0
+    return out
+
+
+def _skew(v: F) -> F:
+    out = np.zeros((*v.shape[:-1], 3, 3))
+    out[..., 0, 1], out[..., 0, 2] = -v[..., 2], v[..., 1]
+    out[..., 1, 0], out[..., 1, 2] = v[..., 2], -v[..., 0]
+    out[..., 2, 0], out[..., 2, 1] = -v[..., 1], v[..., 0]
+    return out
+
+
+def adjoint(T: F) -> F:
+    """Ad(T) for tangent vectors ordered translation first: (..., k, k)."""
+    d = T.shape[-1] - 1
+    R = T[..., :d, :d]
+    t = T[..., :d, d]
+    k = tangent_dim(d)
+    out = np.zeros((*T.shape[:-2], k, k))
+    if d == 2:
+        out[..., :2, :2] = R
+        out[..., 0, 2] = t[..., 1]
+        out[..., 1, 2] = -t[..., 0]
+        out[..., 2, 2] = 1.0
+    else:
+        out[..., :3, :3] = R
+        out[..., :3, 3:] = _skew(t) @ R
+        out[..., 3:, 3:] = R
+    return out
+
+
+def log(T: F) -> F:
+    """Log map (..., d+1, d+1) -> (..., k): exact, translation first."""
+    d = T.shape[-1] - 1
+    t = T[..., :d, d]
+    if d == 2:
+        th = np.arctan2(T[..., 1, 0], T[..., 0, 0])
+        small = np.abs(th) < 1e-9
+        ths = np.where(small, 1.0, th)
+        a = np.where(small, 1.0 - th**2 / 6.0, np.sin(ths) / ths)  # sin θ / θ
+        b = np.where(small, th / 2.0, (1.0 - np.cos(ths)) / ths)  # (1 - cos θ) / θ
+        den = a * a + b * b
+        # V = [[a, -b], [b, a]]; V^-1 = [[a, b], [-b, a]] / (a² + b²)
+        rx = (a * t[..., 0] + b * t[..., 1]) / den
+        ry = (-b * t[..., 0] + a * t[..., 1]) / den
+        return np.stack([rx, ry, th], axis=-1)
+    shape = T.shape[:-2]
+    R = T[..., :3, :3].reshape(-1, 3, 3)
+    phi = Rotation.from_matrix(R).as_rotvec().reshape((*shape, 3))
+    ang = np.linalg.norm(phi, axis=-1)
+    W = _skew(phi)
+    small = ang < 1e-6
+    angs = np.where(small, 1.0, ang)
+    # V^-1 = I - W/2 + (1/θ² - (1+cos θ)/(2θ sin θ)) W²
+    coef = np.where(small, 1.0 / 12.0,
+                    1.0 / angs**2 - (1.0 + np.cos(angs)) / (2.0 * angs * np.sin(angs)))
+    Vinv = np.eye(3) - 0.5 * W + coef[..., None, None] * (W @ W)
+    rho = np.einsum("...ij,...j->...i", Vinv, t)
+    return np.concatenate([rho, phi], axis=-1)
+
+
+def rotation_angle(T: F) -> F:
+    """The rotation angle of each transform, radians in [0, π]."""
+    d = T.shape[-1] - 1
+    if d == 2:
+        return np.abs(np.arctan2(T[..., 1, 0], T[..., 0, 0]))
+    tr = np.trace(T[..., :3, :3], axis1=-2, axis2=-1)
+    return np.arccos(np.clip((tr - 1.0) / 2.0, -1.0, 1.0))
+
+
+def prefix_products(steps: F) -> F:
+    """P[k] = steps[0] · ... · steps[k-1], P[0] = I: (n+1, d+1, d+1), by a log-depth scan."""
+    n, m = steps.shape[0], steps.shape[-1]
+    P = np.empty((n + 1, m, m))
+    P[0] = np.eye(m)
+    P[1:] = steps
+    shift = 1
+    while shift <= n:
+        P[shift + 1:] = P[1:n + 1 - shift] @ P[shift + 1:]
+        shift *= 2
+    return P

@@ -1,0 +1,168 @@
+"""Loop-closure audit on graphs made here: worked numbers as oracles, layouts, refusals, PCM."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from frontdiag.cli import main
+from frontdiag.loops import audit, read_graph
+from frontdiag.loops.graph import GraphError
+from frontdiag.loops.pcm import max_consistent_set
+
+STIFF_ROT = 1e9  # rotation information so high that the chain bends only along x
+
+
+def _edge2d(i: int, j: int, x: float, y: float, th: float, info: tuple[float, ...]) -> str:
+    return f"EDGE_SE2 {i} {j} {x} {y} {th} " + " ".join(f"{v:g}" for v in info)
+
+
+def _line_graph(path: Path, n_links: int = 54, lie_m: float = 3.0, loop_info: float = 100.0,
+                reverse: bool = False) -> Path:
+    """Straight chain of 1 m links (information 1 m⁻²) and one loop 0 -> n claiming a lie."""
+    odo = (1.0, 0.0, 0.0, 1.0, 0.0, STIFF_ROT)
+    lines = [_edge2d(k, k + 1, 1.0, 0.0, 0.0, odo) for k in range(n_links)]
+    loop = (loop_info, 0.0, 0.0, loop_info, 0.0, STIFF_ROT)
+    if reverse:
+        lines.append(_edge2d(n_links, 0, -(n_links - lie_m), 0.0, 0.0, loop))
+    else:
+        lines.append(_edge2d(0, n_links, n_links - lie_m, 0.0, 0.0, loop))
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("reverse", [False, True])
+def test_worked_fold_fraction(tmp_path: Path, reverse: bool) -> None:
+    """Ω = 100 against 54 links of stiffness 1: f = 0.99981, a 3 m lie leaves 0.6 mm."""
+    g = read_graph(_line_graph(tmp_path / "line.g2o", reverse=reverse))
+    t = audit(g, verify=False).table
+    assert len(t) == 1
+    row = t.iloc[0]
+    assert row["chain_compliance_links"] == pytest.approx(54.0, rel=1e-6)
+    assert row["loop_stiffness_links"] == pytest.approx(100.0, rel=1e-6)
+    assert row["f"] == pytest.approx(100 / (100 + 1 / 54), rel=1e-9)
+    assert round(row["f"], 5) == 0.99981
+    assert row["residual_m"] == pytest.approx(3.0, rel=1e-9)
+    assert row["post_residual_m"] == pytest.approx(3.0 * (1 - row["f"]), rel=1e-6)
+    assert round(row["post_residual_m"] * 1000, 1) == 0.6
+    assert row["displacement_m"] == pytest.approx(3.0 * row["f"], rel=1e-6)
+    # the 54-link chain is so soft that 3 m is within its covariance: χ² = 9 / (54 + 0.01)
+    assert row["chi2"] == pytest.approx(9 / (54 + 0.01), rel=1e-6)
+
+
+def test_toro_and_g2o_layouts_agree(tmp_path: Path) -> None:
+    """The same information written in g2o and TORO order reads to the same matrices."""
+    rng = np.random.default_rng(3)
+    A = rng.normal(size=(3, 3))
+    info = A @ A.T + 3 * np.eye(3)
+    g2o_vals = [info[r, c] for r, c in ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))]
+    toro_vals = [info[r, c] for r, c in ((0, 0), (0, 1), (1, 1), (2, 2), (0, 2), (1, 2))]
+    fmt = " ".join
+    (tmp_path / "a.g2o").write_text(
+        f"EDGE_SE2 0 1 1 0 0 {fmt(repr(float(v)) for v in g2o_vals)}\n"
+        f"EDGE_SE2 1 2 1 0 0 {fmt(repr(float(v)) for v in g2o_vals)}\n")
+    (tmp_path / "a.graph").write_text(
+        f"EDGE2 0 1 1 0 0 {fmt(repr(float(v)) for v in toro_vals)}\n"
+        f"EDGE2 1 2 1 0 0 {fmt(repr(float(v)) for v in toro_vals)}\n")
+    ga, gb = read_graph(tmp_path / "a.g2o"), read_graph(tmp_path / "a.graph")
+    np.testing.assert_allclose(ga.info, gb.info)
+    np.testing.assert_allclose(ga.info[0], info)
+
+
+def test_toro_read_as_g2o_is_refused_naming_the_edge(tmp_path: Path, capsys) -> None:
+    # TORO order xx xy yy θθ xθ yθ with xθ = yθ = 0: read in g2o order yy lands on 0
+    (tmp_path / "t.g2o").write_text("EDGE_SE2 0 1 1 0 0 10 0 20 30 0 0\n")
+    with pytest.raises(GraphError, match="line 1: edge 0->1: information matrix is not positive"):
+        read_graph(tmp_path / "t.g2o")
+    assert read_graph(tmp_path / "t.g2o", layout="toro").info[0, 1, 1] == 20
+    rc = main(["loops", str(tmp_path / "t.g2o")])
+    err = capsys.readouterr().err
+    assert rc == 2
+    assert "t.g2o: line 1: edge 0->1" in err and "Traceback" not in err
+    assert "--layout toro" in err
+
+
+def test_sqrt_information_is_squared(tmp_path: Path) -> None:
+    (tmp_path / "s.g2o").write_text("EDGE_SE2 0 1 1 0 0 10 0 0 10 0 20\n")
+    g = read_graph(tmp_path / "s.g2o", sqrt_info=True)
+    np.testing.assert_allclose(np.diag(g.info[0]), [100, 100, 400])
+
+
+def _square_graph(path: Path, loops: list[tuple[int, int, float]]) -> Path:
+    """Robot drives around a 10 x 10 square twice (1 m steps); loops join lap 1 to lap 2,
+    each with a claimed offset error (m) along x."""
+    poses = []
+    for lap in range(2):
+        for side in range(4):
+            for s in range(10):
+                th = side * np.pi / 2
+                base = [(0, 0), (10, 0), (10, 10), (0, 10)][side]
+                poses.append((base[0] + s * np.cos(th), base[1] + s * np.sin(th), th))
+        del lap
+    P = np.array(poses)
+    odo = (100.0, 0.0, 0.0, 100.0, 0.0, 1e4)
+    lines = []
+
+    def rel(i: int, j: int) -> tuple[float, float, float]:
+        xi, yi, ti = P[i]
+        xj, yj, tj = P[j]
+        c, s = np.cos(ti), np.sin(ti)
+        dx, dy = xj - xi, yj - yi
+        return c * dx + s * dy, -s * dx + c * dy, float(np.arctan2(np.sin(tj - ti), np.cos(tj - ti)))
+
+    for k in range(len(P) - 1):
+        lines.append(_edge2d(k, k + 1, *rel(k, k + 1), odo))
+    for i, j, lie_m in loops:
+        x, y, th = rel(i, j)
+        lines.append(_edge2d(i, j, x + lie_m, y, th, (400.0, 0.0, 0.0, 400.0, 0.0, 1e4)))
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_chain_test_flags_a_lie_and_keeps_truth(tmp_path: Path) -> None:
+    g = read_graph(_square_graph(tmp_path / "sq.g2o", [(5, 45, 0.0), (6, 46, 0.0), (7, 47, 4.0)]))
+    t = audit(g, verify=False).table.set_index("i")
+    assert t.loc[5, "verdict"] == "ok" and t.loc[6, "verdict"] == "ok"
+    assert t.loc[7, "verdict"] == "fail" and t.loc[7, "rule"] == "FD-LOP-001"
+    assert t.loc[7, "residual_m"] == pytest.approx(4.0, rel=1e-6)
+
+
+def test_pcm_tiny_known_case() -> None:
+    """Loops 0-1-2 agree, 3 conflicts with 0 and 1, 4 conflicts with 3 only: keep {0,1,2,4}."""
+    keep = max_consistent_set(5, np.array([[0, 3], [1, 3], [3, 4]]))
+    assert keep.tolist() == [True, True, True, False, True]
+    # two conflicting pairs with a shared loop: {1, 2} beats {0}
+    assert max_consistent_set(3, np.array([[0, 1], [0, 2]])).tolist() == [False, True, True]
+
+
+def test_pcm_rejects_the_loop_its_neighbours_contradict(tmp_path: Path) -> None:
+    """A 1.5 m lie that the chain cannot refute, but three loops beside it can."""
+    spec = [(20 + k, 60 + k, 0.0) for k in range(4)] + [(24, 64, 1.5)]
+    g = read_graph(_square_graph(tmp_path / "sq.g2o", spec))
+    res = audit(g, verify=False)
+    t = res.table
+    liar = t[(t["i"] == 24)].iloc[0]
+    assert liar["verdict"] == "fail" and liar["rule"] == "FD-LOP-002"
+    assert (t[t["i"] != 24]["verdict"] == "ok").all()
+    assert t[t["i"] != 24]["group"].nunique() == 1
+
+
+def test_cli_outputs_and_exit_codes(tmp_path: Path, capsys) -> None:
+    gpath = _square_graph(tmp_path / "sq.g2o", [(5, 45, 0.0), (7, 47, 4.0)])
+    out = tmp_path / "out"
+    rc = main(["loops", str(gpath), "--out", str(out), "--junit", str(tmp_path / "j.xml")])
+    assert rc == 1
+    t = pd.read_parquet(out / "loops.parquet")
+    for c in ("i", "j", "residual_m", "residual_deg", "chi2", "f", "group", "verdict", "reason"):
+        assert c in t.columns
+    assert (t["verdict"] == "fail").sum() == 1
+    assert 'failures="1"' in (tmp_path / "j.xml").read_text()
+    assert main(["loops", str(gpath), "--fail-on", "never", "--quiet"]) == 0
+    capsys.readouterr()
+    assert main(["loops", str(gpath), "--explain", "7-47"]) == 0
+    text = capsys.readouterr().out
+    assert "fold fraction" in text and "FD-LOP-001" in text
+    assert main(["loops", str(tmp_path / "missing.g2o")]) == 2
