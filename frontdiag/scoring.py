@@ -263,3 +263,52 @@ def score(frames: pd.DataFrame, labels: pd.DataFrame, *, slack: int = 1,
     return EvalReport(conditions=scores, frames=len(f), labelled_frames=int(labelled.sum()),
                       healthy_frames=int(healthy.sum()), false_alarms=int(alarm_any.sum()),
                       unknown_predicted=unknown)
+
+
+# -- pooling over recordings ---------------------------------------------------------------
+
+_COUNTS = ("episodes", "episodes_found", "frames_labelled", "frames_flagged", "true_positives",
+           "false_positives", "healthy_frames", "false_alarms")
+
+
+def pool(reports: Iterable[EvalReport]) -> EvalReport:
+    """Sum the counts of several recordings' reports per condition (pooled scores).
+
+    Ratios are recomputed from the summed counts, so a long recording weighs by its frames.
+    Conditions come in :data:`CONDITIONS` order.
+    """
+    by: dict[str, ConditionScore] = {}
+    frames = labelled = healthy = alarms = 0
+    unknown: set[str] = set()
+    for r in reports:
+        frames += r.frames
+        labelled += r.labelled_frames
+        healthy += r.healthy_frames
+        alarms += r.false_alarms
+        unknown.update(r.unknown_predicted)
+        for c in r.conditions:
+            s = by.setdefault(c.condition, ConditionScore(c.condition, c.sensors,
+                                                          *([0] * len(_COUNTS))))
+            for k in _COUNTS:
+                setattr(s, k, getattr(s, k) + getattr(c, k))
+    rank = {c: i for i, c in enumerate(CONDITIONS)}
+    conds = sorted(by.values(), key=lambda s: rank.get(s.condition, len(rank)))
+    return EvalReport(conditions=conds, frames=frames, labelled_frames=labelled,
+                      healthy_frames=healthy, false_alarms=alarms,
+                      unknown_predicted=sorted(unknown))
+
+
+def format_pooled(report: EvalReport) -> str:
+    """Plain-text table of a (pooled) report: episodes found, frame precision / recall / F1,
+    false alarms on healthy frames per condition, then the overall false-alarm rate."""
+    def f(v: float | None) -> str:
+        return "  nan" if v is None else f"{v:5.2f}"
+
+    lines = [f"{'condition':24s} {'found':>7s} {'prec':>5s} {'recall':>6s} {'F1':>5s} {'FA':>9s}"]
+    for c in report.conditions:
+        lines.append(f"{c.condition:24s} {c.episodes_found:>3d}/{c.episodes:<3d} {f(c.precision)} "
+                     f"{f(c.recall):>6s} {f(c.f1)} {c.false_alarms:>4d}/{c.healthy_frames:<4d}")
+    rate = report.false_alarm_rate
+    lines.append(f"false alarms on healthy frames: {report.false_alarms}/{report.healthy_frames}"
+                 f" = {float('nan') if rate is None else rate:.3f}")
+    return "\n".join(lines)

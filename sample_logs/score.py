@@ -14,10 +14,8 @@ independently of any rule.
 from __future__ import annotations
 
 import sys
-from collections import defaultdict
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
 HERE = Path(__file__).resolve().parent
@@ -26,11 +24,15 @@ sys.path.insert(0, str(HERE.parent))
 from frontdiag.api import analyze  # noqa: E402
 from frontdiag.conditions import CONDITION_SENSORS, HEALTHY  # noqa: E402
 from frontdiag.errors import ConfigError  # noqa: E402
-from frontdiag.scoring import normalise_frames, read_labels, score  # noqa: E402
+from frontdiag.scoring import (  # noqa: E402
+    format_pooled,
+    normalise_frames,
+    pool,
+    read_labels,
+    score,
+)
 from frontdiag.sim.run import labels_path_for  # noqa: E402
 
-COUNTS = ("episodes", "episodes_found", "frames_labelled", "true_positives", "false_positives",
-          "healthy_frames", "false_alarms")
 CAMERA_METRICS = ("n_keypoints", "keypoint_fill", "entropy_norm", "entropy_inliers_norm",
                   "pose_info_cond", "ratio_reject_rate", "h_over_e",
                   "parallax_med_deg", "d_mean_intensity", "photo_residual_med")
@@ -95,8 +97,7 @@ def main(argv: list[str]) -> int:
     recs = [Path(a) for a in argv] or sorted(
         p for p in HERE.iterdir()
         if p.suffix in (".mcap", ".bag") or (p.is_dir() and (p / "metadata.yaml").exists()))
-    agg: dict[str, dict[str, int]] = defaultdict(lambda: defaultdict(int))
-    healthy = alarms = 0
+    reports = []
     rows = []
     for rec in recs:
         if not rec.exists():
@@ -104,26 +105,13 @@ def main(argv: list[str]) -> int:
         labels = read_labels(labels_path_for(rec))
         frames = normalise_frames(analyze(rec), source=str(rec))
         rep = score(frames, labels)
-        healthy += rep.healthy_frames
-        alarms += rep.false_alarms
-        for c in rep.conditions:
-            for k in COUNTS:
-                agg[c.condition][k] += getattr(c, k)
+        reports.append(rep)
         frames["label"] = [_truth(t, s, labels) for t, s in zip(frames["t_ns"], frames["sensor"],
                                                                 strict=True)]
         rows.append(frames)
         print(f"{rec.name}: {len(frames)} rows, {rep.false_alarms}/{rep.healthy_frames} "
               "false alarms", file=sys.stderr)
-    print(f"{'condition':24s} {'found':>7s} {'prec':>5s} {'recall':>6s} {'F1':>5s} {'FA':>9s}")
-    for cond, d in agg.items():
-        n = d["true_positives"] + d["false_positives"]
-        p = d["true_positives"] / n if n else np.nan
-        r = d["true_positives"] / d["frames_labelled"] if d["frames_labelled"] else np.nan
-        f1 = 2 * p * r / (p + r) if n and d["frames_labelled"] and p + r > 0 else np.nan
-        print(f"{cond:24s} {d['episodes_found']:>3d}/{d['episodes']:<3d} {p:5.2f} {r:6.2f} "
-              f"{f1:5.2f} {d['false_alarms']:>4d}/{d['healthy_frames']:<4d}")
-    print(f"false alarms on healthy frames: {alarms}/{healthy}"
-          f" = {alarms / healthy if healthy else float('nan'):.3f}\n")
+    print(format_pooled(pool(reports)) + "\n")
     table = pd.concat(rows, ignore_index=True)
     for sensor, metrics in (("camera", CAMERA_METRICS), ("lidar", LIDAR_METRICS)):
         part = table[table["sensor"] == sensor]

@@ -1,0 +1,192 @@
+"""The real-data validation set's build and scoring scripts (validation/).
+
+The recordings themselves are not in the repository: the build is tested on tiny images this
+test writes; one test scores two built recordings when /work/valdata is there.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pandas as pd
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from frontdiag.errors import ConfigError  # noqa: E402
+from frontdiag.io.readers import open_recording  # noqa: E402
+from frontdiag.scoring import (  # noqa: E402
+    ConditionScore,
+    EvalReport,
+    format_pooled,
+    pool,
+    read_labels,
+    score,
+)
+from validation import build  # noqa: E402
+
+VALDATA = Path("/work/valdata")
+
+
+def _texture(seed: int, w: int = 96, h: int = 64) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    return cv2.resize(rng.integers(0, 255, (h // 4, w // 4), dtype=np.uint8), (w, h),
+                      interpolation=cv2.INTER_NEAREST)
+
+
+def _source_tree(tmp: Path) -> dict:
+    """A plain-file 'repository' owner/name with 4 PNG frames and a times file."""
+    base = tmp / "src" / "owner+name"
+    (base / "seq").mkdir(parents=True, exist_ok=True)
+    files = []
+    for i in range(4):
+        ok, buf = cv2.imencode(".png", _texture(i))
+        assert ok
+        p = base / "seq" / f"{1000 + i}.000000500.png"
+        p.write_bytes(buf.tobytes())
+        files.append({"path": f"seq/{p.name}",
+                      "sha256": hashlib.sha256(buf.tobytes()).hexdigest()})
+    (base / "times.txt").write_text("0.0\n0.1\n0.25\n0.3\n")
+    cam = {"fx": 80.0, "fy": 80.0, "cx": 48.0, "cy": 32.0}
+    recs = [
+        {"name": "seq_bag", "source": "s", "split": "dev", "container": "bag",
+         "encoding": "mono8", "frames": {"files": files},
+         "stamps": {"kind": "filename_seconds"}, "camera": cam,
+         "labels": [[1, 2, "pure_rotation"], [3, 3, "healthy"]]},
+        {"name": "seq_db3", "source": "s", "split": "report", "container": "ros2-db3",
+         "encoding": "source", "frames": {"files": files},
+         "stamps": {"kind": "times_txt", "path": "times.txt", "t0_ns": 5_000_000_000},
+         "camera": cam, "labels": [[0, 3, "healthy"]]},
+    ]
+    return {"version": 1, "sources": {"s": {"repo": "owner/name", "commit": "0" * 40}},
+            "recordings": recs}
+
+
+def _write(tmp: Path, manifest: dict) -> Path:
+    p = tmp / "manifest.json"
+    p.write_text(json.dumps(manifest))
+    return p
+
+
+def test_build_writes_containers_and_labels_in_header_stamps(tmp_path: Path) -> None:
+    m = _write(tmp_path, _source_tree(tmp_path))
+    out = tmp_path / "out"
+    assert build.main(["--src", str(tmp_path / "src"), "--out", str(out),
+                       "--manifest", str(m)]) == 0
+    bag = out / "dev" / "seq_bag.bag"
+    db3 = out / "report" / "seq_db3"
+    assert bag.is_file() and (db3 / "metadata.yaml").is_file()
+    # filename stamps are parsed exactly (no float rounding of 1000.000000500 s)
+    lab = read_labels(out / "dev" / "seq_bag.bag.labels.csv")
+    assert list(lab.itertuples(index=False, name=None)) == [
+        (1001_000000500, 1002_000000500, "pure_rotation"),
+        (1003_000000500, 1003_000000500, "healthy")]
+    lab2 = read_labels(out / "report" / "seq_db3.labels.csv")
+    assert lab2.iloc[0].tolist() == [5_000_000_000, 5_300_000_000, "healthy"]
+    # the container holds one image and one CameraInfo per frame, stamped as labelled
+    with open_recording(bag) as rec:
+        topics = {t.topic: t.count for t in rec.topics}
+    assert topics == {"/camera/image_raw": 4, "/camera/camera_info": 4}
+
+
+def test_build_refuses_changed_source_and_bad_labels(tmp_path: Path) -> None:
+    man = _source_tree(tmp_path)
+    man["recordings"][0]["frames"]["files"][2]["sha256"] = "f" * 64
+    with pytest.raises(ConfigError, match="sha256"):
+        build.main(["--src", str(tmp_path / "src"), "--out", str(tmp_path / "o"),
+                    "--manifest", str(_write(tmp_path, man)), "--only", "seq_bag"])
+    man = _source_tree(tmp_path)
+    man["recordings"][1]["labels"] = [[2, 4, "healthy"]]  # 4 frames: 0..3
+    with pytest.raises(ConfigError, match="outside"):
+        build.load_manifest(_write(tmp_path, man))
+    man["recordings"][1]["labels"] = [[0, 1, "standing_still"]]
+    with pytest.raises(ConfigError, match="unknown condition"):
+        build.load_manifest(_write(tmp_path, man))
+    man["recordings"][1]["labels"] = []
+    man["recordings"][1]["split"] = "test"
+    with pytest.raises(ConfigError, match="split"):
+        build.load_manifest(_write(tmp_path, man))
+
+
+def test_fill_hashes_adds_only_missing(tmp_path: Path) -> None:
+    man = _source_tree(tmp_path)
+    want = man["recordings"][0]["frames"]["files"][0]["sha256"]
+    for rec in man["recordings"]:
+        for e in rec["frames"]["files"]:
+            e.pop("sha256", None)
+    n = build.fill_hashes(man, tmp_path / "src")
+    assert n == 4 + 1  # the shared file list once, and the second recording's times.txt
+    assert man["recordings"][0]["frames"]["files"][0]["sha256"] == want
+    assert build.fill_hashes(man, tmp_path / "src") == 0
+
+
+def test_the_committed_manifest_is_consistent() -> None:
+    m = build.load_manifest()
+    names = [r["name"] for r in m["recordings"]]
+    assert len(names) == len(set(names))
+    for rec in m["recordings"]:
+        entries = [rec["frames"]] if rec["frames"].get("kind") == "video" \
+            else rec["frames"]["files"]
+        assert all(len(e.get("sha256", "")) == 64 for e in entries), rec["name"]
+        assert m["sources"][rec["source"]]["licence"]
+        assert len(m["sources"][rec["source"]]["commit"]) == 40
+
+
+def _cs(cond: str, **kw: int) -> ConditionScore:
+    base = dict.fromkeys(("episodes", "episodes_found", "frames_labelled", "frames_flagged",
+                          "true_positives", "false_positives", "healthy_frames",
+                          "false_alarms"), 0)
+    base.update(kw)
+    return ConditionScore(cond, ("camera",), **base)
+
+
+def test_pool_sums_counts_and_recomputes_ratios() -> None:
+    a = EvalReport([_cs("pure_rotation", episodes=1, episodes_found=1, frames_labelled=10,
+                        true_positives=9, false_positives=1, healthy_frames=20,
+                        false_alarms=1)], frames=30, labelled_frames=30, healthy_frames=20,
+                   false_alarms=1)
+    b = EvalReport([_cs("feature_clustering", episodes=2, frames_labelled=4),
+                    _cs("pure_rotation", episodes=1, frames_labelled=30, true_positives=3,
+                        false_positives=3, healthy_frames=10)],
+                   frames=40, labelled_frames=34, healthy_frames=10, false_alarms=0)
+    p = pool([a, b])
+    assert [c.condition for c in p.conditions] == ["feature_clustering", "pure_rotation"]
+    rot = p.conditions[1]
+    assert (rot.episodes, rot.episodes_found, rot.frames_labelled) == (2, 1, 40)
+    assert rot.precision == pytest.approx(12 / 16)
+    assert rot.recall == pytest.approx(12 / 40)
+    assert (p.frames, p.healthy_frames, p.false_alarms) == (70, 30, 1)
+    text = format_pooled(p)
+    assert "pure_rotation" in text and "1/2" in text and "1/30" in text
+
+
+def test_pool_of_one_scored_recording_equals_its_report() -> None:
+    frames = pd.DataFrame({"t_ns": np.arange(10), "conditions": [[]] * 5 + [["exposure_step"]] * 5})
+    labels = pd.DataFrame({"t_start_ns": [0, 5], "t_end_ns": [4, 9],
+                           "condition": ["healthy", "exposure_step"]})
+    rep = score(frames, labels)
+    assert pool([rep]).as_dict() == rep.as_dict()
+
+
+@pytest.mark.skipif(not (VALDATA / "dev" / "weir_panorama.mcap").exists(),
+                    reason="validation recordings not built (python validation/build.py)")
+def test_score_built_recordings() -> None:
+    from validation import score as vscore
+
+    m = build.load_manifest()
+    by = {r["name"]: r for r in m["recordings"]}
+    for name in ("weir_panorama", "pencil_left"):
+        rep = vscore.score_recording(build.output_path(VALDATA, by[name]))
+        labelled = {c for _, _, c in by[name]["labels"]} - {"healthy"}
+        got = {c.condition: c for c in rep.conditions}
+        for cond in labelled:
+            want = sum(1 for *_, c in by[name]["labels"] if c == cond)
+            assert got[cond].episodes == want, (name, cond)
+        assert rep.frames == build.expected_frames(by[name])

@@ -1,0 +1,122 @@
+"""Score frontdiag's verdicts on the real-data validation recordings, pooled per condition.
+
+    python validation/score.py                      # the dev half, in /work/valdata/dev
+    python validation/score.py --split report       # the reported half (never tune on it)
+    python validation/score.py --split all --json   # both halves, machine-readable
+    python validation/score.py --data DIR --per-recording
+
+Runs ``frontdiag analyze`` (the Python API, default rules) on every recording of the chosen
+half listed in ``validation/manifest.json`` and built by ``validation/build.py``, scores each
+against its ``<recording>.labels.csv`` with ``frontdiag eval``'s scorer (``frontdiag.scoring``),
+and prints the pooled table in the format of ``sample_logs/score.py``: per condition, episodes
+found / episodes (episode recall), frame precision, frame recall, F1, and false alarms on
+healthy frames; then the overall false-alarm rate. Every condition is scored on every
+recording, so a condition's false alarms count all healthy frames of the half.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+HERE = Path(__file__).resolve().parent
+if str(HERE.parent) not in sys.path:
+    sys.path.insert(0, str(HERE.parent))
+
+from frontdiag.conditions import CONDITIONS  # noqa: E402
+from frontdiag.errors import ConfigError  # noqa: E402
+from frontdiag.scoring import (  # noqa: E402
+    EvalReport,
+    format_pooled,
+    normalise_frames,
+    pool,
+    read_labels,
+    score,
+)
+from frontdiag.sim.run import labels_path_for  # noqa: E402
+from validation.build import DEFAULT_OUT, MANIFEST, load_manifest, output_path  # noqa: E402
+
+CAMERA_CONDITIONS = tuple(c for c in CONDITIONS if c != "registration_degeneracy")
+
+
+def recordings(manifest: dict[str, Any], split: str, data: Path) -> list[tuple[str, Path]]:
+    """(name, built path) of every recording of ``split`` (``dev``, ``report`` or ``all``)."""
+    out = []
+    for rec in manifest["recordings"]:
+        if split in ("all", rec["split"]):
+            out.append((rec["name"], output_path(data, rec)))
+    return out
+
+
+def score_recording(path: Path, conditions: Sequence[str] = CAMERA_CONDITIONS) -> EvalReport:
+    """Analyse one built recording with the default rules and score it against its labels."""
+    from frontdiag.api import analyze
+
+    if not path.exists():
+        raise ConfigError(f"recording not found: {path}",
+                          hint="build the validation set first: python validation/build.py")
+    labels = read_labels(labels_path_for(path))
+    frames = normalise_frames(analyze(path), source=str(path))
+    return score(frames, labels, conditions=conditions)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="validation/score.py", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--split", choices=("dev", "report", "all"), default="dev",
+                    help="which half to score (default dev)")
+    ap.add_argument("--data", type=Path, default=DEFAULT_OUT,
+                    help="where build.py wrote the recordings (default /work/valdata)")
+    ap.add_argument("--manifest", type=Path, default=MANIFEST)
+    ap.add_argument("--only", nargs="*", default=None, help="recording names to score")
+    ap.add_argument("--per-recording", action="store_true",
+                    help="also print each recording's own table")
+    ap.add_argument("--json", action="store_true", help="print JSON instead of tables")
+    a = ap.parse_args(argv)
+    recs = recordings(load_manifest(a.manifest), a.split, a.data)
+    if a.only:
+        missing = set(a.only) - {n for n, _ in recs}
+        if missing:
+            raise ConfigError(f"not in the {a.split} half: {', '.join(sorted(missing))}")
+        recs = [(n, p) for n, p in recs if n in a.only]
+    if not recs:
+        raise ConfigError(f"no recordings in the {a.split} half of {a.manifest}")
+    reports: dict[str, EvalReport] = {}
+    for i, (name, path) in enumerate(recs, 1):
+        print(f"[{i}/{len(recs)}] {name}", file=sys.stderr)
+        reports[name] = score_recording(path)
+    pooled = pool(reports.values())
+    if a.json:
+        print(json.dumps({"split": a.split, "pooled": pooled.as_dict(),
+                          "recordings": {n: r.as_dict() for n, r in reports.items()}},
+                         indent=1))
+        return 0
+    if a.per_recording:
+        for name, rep in reports.items():
+            print(f"== {name}")
+            print(format_pooled(pool([_labelled_only(rep)])) + "\n")
+    print(f"== {a.split}: {len(recs)} recordings, {pooled.frames} frames")
+    print(format_pooled(_labelled_only(pooled)))
+    return 0
+
+
+def _labelled_only(rep: EvalReport) -> EvalReport:
+    """Rows for conditions that were labelled or flagged (the others are all zeros)."""
+    keep = [c for c in rep.conditions if c.episodes or c.frames_flagged]
+    return EvalReport(conditions=keep, frames=rep.frames, labelled_frames=rep.labelled_frames,
+                      healthy_frames=rep.healthy_frames, false_alarms=rep.false_alarms,
+                      unknown_predicted=rep.unknown_predicted)
+
+
+if __name__ == "__main__":
+    from frontdiag.errors import FrontdiagError
+
+    try:
+        raise SystemExit(main())
+    except FrontdiagError as exc:
+        print(f"score.py: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
