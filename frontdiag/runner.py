@@ -11,6 +11,7 @@ stays a pure, sequential function of its frames.
 
 from __future__ import annotations
 
+import copy
 import logging
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -70,6 +71,7 @@ class SensorStream:
         self.window_start: int | None = None
         self.gaps = GapDetector()
         self.owned = True  # the current message counts (not warm-up)
+        self.draining = False  # past the window: frames only complete rows already made
 
     def analyse(self, record: CameraFrame | LidarScan, frontend: Any, sensor: str,
                 rec_start: int) -> dict[str, Any]:
@@ -99,7 +101,7 @@ class SensorStream:
         fw = self.frames
         if fw is not None and self.index < fw.warm_from:
             return False
-        self.owned = fw is None or self.index >= fw.own_from
+        self.owned = not self.draining and (fw is None or self.index >= fw.own_from)
         if self.owned:
             self.stats.messages += 1
         if (self.in_window - 1) % max(self.opts.stride, 1):
@@ -196,9 +198,10 @@ def camera_key(front: Any, stream: SensorStream) -> Any:
 
 
 def camera_state(front: Any, stream: SensorStream) -> Any:
-    """A picklable hand-over of the camera frontend and its gap detector."""
+    """A picklable hand-over of the camera frontend and its gap detector (a copy: the run
+    goes on)."""
     g = stream.gaps
-    return (front.get_state(), g._last, list(g._dts), stream.stats.last_t_ns)
+    return copy.deepcopy((front.get_state(), g._last, list(g._dts), stream.stats.last_t_ns))
 
 
 def _restore_camera(front: Any, stream: SensorStream, state: Any) -> None:
@@ -259,6 +262,17 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
         if stream is not None:
             stream.window_start = s
     done = 0
+    by_frame: dict[int, dict[str, Any]] = {}  # owned camera rows, for completions
+
+    def complete() -> None:
+        assert cam_front is not None
+        for f, values in cam_front.take_updates():
+            row = by_frame.get(f)
+            if row is None:  # a warm-up row, not part of this run's table
+                continue
+            for k, v in values.items():
+                row[k] = row.get(k, 0.0) + v if k.startswith("ms_") else v
+
     try:
         for raw in rec.messages(read_topics, None, e):
             if raw.topic == choice.odometry and lid_front is not None:
@@ -271,7 +285,11 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
             if raw.topic == choice.camera and cam_stream and cam_front and conv:
                 if cam_stream.full and (lid_stream is None or lid_stream.full):
                     break
-                if cam_stream.past_end():
+                if cam_stream.past_end() and not cam_stream.draining:
+                    if want_end_state:
+                        out.end_state = camera_state(cam_front, cam_stream)
+                    cam_stream.draining = True
+                if cam_stream.draining and not cam_front.pending:
                     break
                 if not cam_stream.admit(raw.log_ns):
                     continue
@@ -280,15 +298,20 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
                     check_all_failed(cam_stream)
                     continue
                 row = cam_stream.analyse(frame, cam_front, "camera", rec_start)
+                complete()
                 if cam_stream.owned:
                     rows.append(row)
+                    by_frame[frame.index] = row
+                if cam_stream.draining:
+                    continue
                 if record_keys or until is not None:
                     key = camera_key(cam_front, cam_stream)
                     if record_keys:
                         out.keys[frame.index] = key
                     if until is not None and until(frame.index, key):
+                        # rows already made may wait for the interval to close: drain
                         out.stopped_at = frame.index
-                        break
+                        cam_stream.draining = True
                 if not cam_stream.owned:
                     continue
             elif raw.topic == choice.lidar and lid_stream and lid_front:
@@ -310,8 +333,11 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
         out.interrupted = True
     except FrontdiagError as exc:
         out.fault = exc
-    if want_end_state and cam_front is not None and cam_stream is not None:
-        out.end_state = camera_state(cam_front, cam_stream)
+    if cam_front is not None and cam_stream is not None:
+        if want_end_state and out.end_state is None:
+            out.end_state = camera_state(cam_front, cam_stream)
+        cam_front.finish()  # the end of the frames read closes the open interval
+        complete()
     return out
 
 

@@ -168,12 +168,42 @@ def test_keyframe_policy_fires_on_frame_count_and_parallax() -> None:
     assert same_ref and all(r["t_dir_change_deg"] < 15 for r in same_ref)
 
 
+def run_completed(fe: CameraFrontend, grays: list[np.ndarray]) -> list[dict]:
+    """Rows of ``fe`` over ``grays`` with the columns completed when intervals close."""
+    rows: list[dict] = []
+
+    def complete() -> None:
+        for f, values in fe.take_updates():
+            for k, v in values.items():
+                rows[f][k] = rows[f].get(k, 0.0) + v if k.startswith("ms_") else v
+
+    for i, g in enumerate(grays):
+        rows.append(fe.process(frame(i, g)))
+        complete()
+    fe.finish()
+    complete()
+    return rows
+
+
+def test_a_long_interval_is_not_read_two_intervals_back() -> None:
+    # the same walk with keyframes 12 frames apart: each interval's own reading spans more
+    # than 4.9 px, so its early low-parallax frames need no second reading
+    fe = CameraFrontend(CameraParams(kf_max_frames=12, kf_parallax_deg=30.0), Intrinsics(K=K))
+    rows = run_completed(fe, walk(30, step_deg=0.05, step_m=0.08))
+    assert any(r["parallax_med_px"] < 4.9 for r in rows[13:])
+    assert max(r["parallax_med_px"] for r in rows[13:25]) > 2 * 4.9, [r["parallax_med_px"] for r in rows]
+    assert all(np.isnan(r["h_over_e_2kf"]) for r in rows)
+    short = run_completed(CameraFrontend(CameraParams(kf_max_frames=12, kf_parallax_deg=30.0,
+                                                      two_interval_px=1e9), Intrinsics(K=K)),
+                          walk(30, step_deg=0.05, step_m=0.08))
+    assert sum(r["h_over_e_2kf"] == r["h_over_e_2kf"] for r in short) >= 3
+
+
 def test_a_short_interval_is_also_read_against_the_keyframe_before() -> None:
     # keyframes every 4 frames on a slow walk: each interval spans a few pixels, under the
     # 4.9 px at which H/E starts to tell a plane from 3D structure
     fe = CameraFrontend(CameraParams(kf_max_frames=4), Intrinsics(K=K))
-    rows = [fe.process(frame(i, g)) for i, g in enumerate(walk(14, step_deg=0.05,
-                                                                step_m=0.01))]
+    rows = run_completed(fe, walk(14, step_deg=0.05, step_m=0.01))
     kfs = [i for i, r in enumerate(rows) if r["keyframe_reason"]]
     assert kfs[:3] == [0, 4, 8]
     # first interval: no keyframe before the reference

@@ -23,14 +23,19 @@ sigma = 1 px) a 3D scene fits H nearly as well as E. When a keyframe interval is
 also read against the keyframe before its reference, over the tracks alive across both
 intervals: ``h_over_e_2kf`` and ``parallax_med_px_2kf`` (``ref2_frame`` names that keyframe).
 That reading is frontdiag's, not a stage of the frontend: its time is ``ms_diagnostic``, outside
-``ms_geometry`` and ``ms_total``.
+``ms_geometry`` and ``ms_total``. It is needed only where the interval as a whole is short, so it
+is taken when the interval closes (the next keyframe, a reset, or :meth:`finish`): the frames
+under 4.9 px of an interval whose own reading — the median image parallax over its upper half by
+parallax, as FD-PLN-001 reads it — stays under ``two_interval_px`` are read then, and the rows
+get them through :meth:`take_updates`; the frames of longer intervals are not read (their
+``*_2kf`` columns stay empty: the H/E reading of their own interval holds).
 """
 
 from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import cv2
@@ -75,6 +80,7 @@ class CameraParams:
     kf_min_tracked_share: float = 0.9
     kf_parallax_deg: float = 2.29
     relink_tracks: bool = True
+    two_interval_px: float = 4.9  # read intervals shorter than this two keyframes back
     seed: int = 0
 
     def as_dict(self) -> dict[str, Any]:
@@ -101,6 +107,10 @@ class _Keyframe:
     last_t: np.ndarray | None = None
     parent: _View | None = None  # the keyframe before this one, when tracks link the two
     parent_idx: np.ndarray | None = None  # per feature of ``view``: its track in ``parent``, or -1
+    reads: list[tuple[float, float]] = field(default_factory=list)  # (parallax deg, px) per row
+    pending: list[tuple[int, np.ndarray, np.ndarray]] = field(default_factory=list)
+    """Two-interval readings to take if the interval turns out short: (frame, parent points,
+    current points)."""
 
 
 def _row_template() -> dict[str, Any]:
@@ -138,10 +148,26 @@ class CameraFrontend:
         self._kf: _Keyframe | None = None
         self._he_min_px = 2 * homography_threshold_px(params.sigma_px)
         self._two_interval_sel: np.ndarray | None = None
+        self._updates: list[tuple[int, dict[str, Any]]] = []
 
     def reset(self) -> None:
+        self._close_interval()
         self._prev = None
         self._kf = None
+
+    def finish(self) -> None:
+        """The end of the frames: close the open interval (see :meth:`take_updates`)."""
+        self._close_interval()
+
+    def take_updates(self) -> list[tuple[int, dict[str, Any]]]:
+        """Columns of earlier rows completed since the last call: ``(frame, values)``."""
+        out, self._updates = self._updates, []
+        return out
+
+    @property
+    def pending(self) -> bool:
+        """Whether rows already returned may still be completed by later frames."""
+        return bool(self._kf is not None and self._kf.pending)
 
     # ------------------------------------------------------------------ state (for windows)
     def state_key(self) -> tuple[int, int] | None:
@@ -240,6 +266,8 @@ class CameraFrontend:
                                                      E_SAMPLE, p.ransac_confidence))
         if tv.parallax_med_deg == tv.parallax_med_deg:
             row["parallax_med_px"] = self._deg_to_px(tv.parallax_med_deg)
+            if row["h_over_e"] == row["h_over_e"]:
+                kf.reads.append((tv.parallax_med_deg, row["parallax_med_px"]))
             if row["parallax_med_px"] < self._he_min_px:
                 self._two_interval_sel = sel  # read after the geometry stage (diagnostic)
         if not tv.ok_e:
@@ -255,9 +283,9 @@ class CameraFrontend:
         assert self._K is not None
         return float(self._K[0, 0] * math.tan(math.radians(deg)))
 
-    def _read_two_intervals(self, cur: _View, kf: _Keyframe, sel: np.ndarray,
-                            row: dict[str, Any]) -> None:
-        """H/E and parallax against the keyframe before the reference (module docstring)."""
+    def _queue_two_intervals(self, cur: _View, kf: _Keyframe, sel: np.ndarray) -> None:
+        """Keep this frame's correspondences with the keyframe before the reference, to read
+        when the interval closes (module docstring)."""
         if kf.parent is None or kf.parent_idx is None:
             return
         p = self.params
@@ -265,13 +293,41 @@ class CameraFrontend:
         ok = idx >= 0
         if ok.sum() < max(p.min_correspondences, E_SAMPLE):
             return
-        tv = two_view(kf.parent.und[idx[ok]], cur.und[sel[ok]], self._K, sigma_px=p.sigma_px,
-                      confidence=p.ransac_confidence, max_iters=p.ransac_max_iters, seed=p.seed)
-        if not tv.ok_e or tv.parallax_med_deg != tv.parallax_med_deg:
+        kf.pending.append((cur.index, kf.parent.und[idx[ok]], cur.und[sel[ok]]))
+
+    def _interval_short(self, kf: _Keyframe) -> bool:
+        """The interval's own reading: median image parallax over its upper half by parallax
+        (degrees), as the planar rule reads a keyframe interval; short when under
+        ``two_interval_px`` (or when no row could be read)."""
+        if not kf.reads:
+            return True
+        par, px = np.array(kf.reads).T
+        upper = px[par >= np.median(par)]
+        # a hair of margin: reading an interval the rule would not is harmless, the reverse not
+        return bool(np.median(upper) < self.params.two_interval_px * (1 + 1e-9))
+
+    def _close_interval(self) -> None:
+        """Read the pending frames two keyframe intervals back if the interval was short."""
+        kf = self._kf
+        if kf is None or not kf.pending:
             return
-        row.update(ref2_frame=kf.parent.index, h_over_e_2kf=tv.h_over_e,
-                   parallax_med_deg_2kf=tv.parallax_med_deg,
-                   parallax_med_px_2kf=self._deg_to_px(tv.parallax_med_deg))
+        pending, kf.pending = kf.pending, []
+        if not self._interval_short(kf):
+            return
+        assert kf.parent is not None
+        p = self.params
+        for frame, p_par, p_cur in pending:
+            t0 = self._clock()
+            tv = two_view(p_par, p_cur, self._K, sigma_px=p.sigma_px,
+                          confidence=p.ransac_confidence, max_iters=p.ransac_max_iters,
+                          seed=p.seed, pose_information=False)
+            upd: dict[str, Any] = {}
+            if tv.ok_e and tv.parallax_med_deg == tv.parallax_med_deg:
+                upd = {"ref2_frame": kf.parent.index, "h_over_e_2kf": tv.h_over_e,
+                       "parallax_med_deg_2kf": tv.parallax_med_deg,
+                       "parallax_med_px_2kf": self._deg_to_px(tv.parallax_med_deg)}
+            upd["ms_diagnostic"] = (self._clock() - t0) * 1e3
+            self._updates.append((frame, upd))
 
     def _photometric(self, cur: _View, prev: _View, q: np.ndarray, t: np.ndarray,
                      row: dict[str, Any]) -> None:
@@ -318,11 +374,12 @@ class CameraFrontend:
                 # frontdiag's own reading, not a stage of the frontend: timed apart, so the
                 # stage times (and budget projections from them) stay the frontend's
                 with timer("diagnostic"):
-                    self._read_two_intervals(cur, kf, self._two_interval_sel, row)
+                    self._queue_two_intervals(cur, kf, self._two_interval_sel)
             if len(cur.feats) < 2:
                 row["status"] = "no_features"
             reason = self._keyframe_reason(lost, kf, row)
         if reason:
+            self._close_interval()
             # the new reference keeps its tracks into the old one, unless they were lost
             linked = kf is not None and reason != "lost"
             parent_idx = cur.kf_idx if linked else None

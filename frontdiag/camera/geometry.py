@@ -228,9 +228,10 @@ def decompose(E: np.ndarray, f_ref: np.ndarray, f_cur: np.ndarray
 
 def two_view(p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray | None, *,
              sigma_px: float = 1.0, confidence: float = 0.999, max_iters: int = 1000,
-             seed: int = 0) -> TwoView:
+             seed: int = 0, pose_information: bool = True) -> TwoView:
     """E (if K is known) and H with USAC_MAGSAC on the same correspondences, the pose from E,
-    parallax and the pose information condition. Points are undistorted pixel coordinates."""
+    parallax and (unless ``pose_information`` is False) the pose information condition.
+    Points are undistorted pixel coordinates."""
     n = len(p_ref)
     p_ref = np.ascontiguousarray(p_ref, np.float64)
     p_cur = np.ascontiguousarray(p_cur, np.float64)
@@ -252,7 +253,7 @@ def two_view(p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray | None, *,
     f_ref, f_cur = bearings(p_ref[sel], K), bearings(p_cur[sel], K)
     R, t, par = decompose(E, f_ref, f_cur)
     rot = float(np.degrees(np.linalg.norm(cv2.Rodrigues(R)[0])))
-    cond = pose_information_condition(f_ref, f_cur, K, R, t)
+    cond = pose_information_condition(f_ref, f_cur, K, R, t) if pose_information else math.nan
     return TwoView(n, inliers_e=float(inl_e), inliers_h=inl_h, inlier_ratio=w, rot_deg=rot,
                    parallax_med_deg=float(np.median(par)), pose_info_cond=cond,
                    t_dir=t / max(float(np.linalg.norm(t)), 1e-12), ok_e=True, inlier_mask=sel)

@@ -35,6 +35,10 @@ Examples:
 
   frontdiag analyze long_run.mcap --jobs 2 --out results/   # both cores on one recording
 
+  frontdiag analyze logs/ 'more/*.mcap' --out fleet/ --jobs 2   # a fleet: one folder each
+
+  frontdiag analyze logs/ --out fleet/ --scheduler tcp://10.0.0.5:8786   # on a Dask cluster
+
 Exit codes: 0 nothing at or above --fail-on, 1 a gate failed, 2 bad input / usage / config,
 3 internal error, 130 interrupted.
 """
@@ -45,8 +49,11 @@ def register(app: typer.Typer) -> None:
 
 
 def analyze_cmd(
-    log: Path = typer.Argument(..., help="Recording: .bag, .db3, .mcap, or a bag folder.",
-                               show_default=False),
+    logs: list[Path] = typer.Argument(..., metavar="LOG...",
+                                      help="Recording: .bag, .db3, .mcap, or a bag folder. "
+                                           "Several, a folder of recordings or a quoted glob: "
+                                           "a fleet run (needs --out).",
+                                      show_default=False),
     out: Path | None = typer.Option(None, "--out", "-o",
                                     help="Result directory: frames.parquet, manifest.json, "
                                          "episodes.parquet (and frames.csv)."),
@@ -103,7 +110,14 @@ def analyze_cmd(
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or table."),
     jobs: int = typer.Option(1, "--jobs", "-j",
                              help="Processes: a long recording is split into time windows "
-                                  "analysed in parallel (same table as one process)."),
+                                  "analysed in parallel (same table as one process); a fleet "
+                                  "runs this many recordings at once."),
+    scheduler: str | None = typer.Option(None, "--scheduler",
+                                         help="Fleet on Dask: tcp://HOST:PORT of a running "
+                                              "scheduler, or 'local' for a LocalCluster of "
+                                              "--jobs workers (needs frontdiag[fleet])."),
+    force: bool = typer.Option(False, "--force",
+                               help="Fleet: re-analyse recordings whose result is current."),
 ) -> int:
     from rich.console import Console
 
@@ -127,7 +141,11 @@ def analyze_cmd(
         raise ConfigError(f"--ransac-iters {ransac_iters}: need at least 1")
     if jobs < 1:
         raise ConfigError(f"--jobs {jobs}: need at least 1")
-    out_dir = prepare_out_dir(out, [log]) if out is not None else None
+    from frontdiag.cli.fleet_ import is_fleet
+
+    fleet = is_fleet(logs, scheduler)
+    log = logs[0]
+    out_dir = None if out is None or fleet else prepare_out_dir(out, [log])
     opts = AnalysisOptions(
         camera_topic=camera_topic, lidar_topic=lidar_topic, odom_topic=odom_topic,
         use_camera=not no_camera, use_lidar=not no_lidar, intrinsics=intrinsics,
@@ -138,6 +156,14 @@ def analyze_cmd(
         rules=not no_rules, rules_dir=str(rules_dir) if rules_dir else None,
         rules_overrides=str(overrides) if overrides else None, select=_split(select),
         ignore=_split(ignore), jobs=jobs)
+    if fleet:
+        from frontdiag.cli.fleet_ import run_fleet
+
+        if baseline or junit or max_fraction:
+            raise ConfigError("--baseline, --junit and --max-fraction apply to one recording",
+                              hint="analyse that recording on its own to use them")
+        return run_fleet(logs, out, opts, jobs=jobs, scheduler=scheduler, fail_on=fail_on,
+                         csv=(fmt == "csv"), force=force, as_json=as_json, quiet=quiet)
     limits = None
     if max_fraction:
         from frontdiag.verdicts import parse_max_fraction

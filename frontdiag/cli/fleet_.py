@@ -1,0 +1,89 @@
+"""`frontdiag analyze DIR_OR_GLOB... --out DIR`: many recordings, one result folder each."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from frontdiag.errors import ConfigError
+
+
+def is_fleet(logs: list[Path], scheduler: str | None) -> bool:
+    """Several inputs, a glob, a folder of recordings, or a scheduler: a fleet run."""
+    import glob
+
+    from frontdiag.fleet import is_recording
+
+    if len(logs) > 1 or scheduler is not None or glob.has_magic(str(logs[0])):
+        return True
+    p = logs[0]
+    return p.is_dir() and not is_recording(p)
+
+
+def run_fleet(logs: list[Path], out: Path | None, opts: Any, *, jobs: int,
+              scheduler: str | None, fail_on: str, csv: bool, force: bool, as_json: bool,
+              quiet: bool) -> int:
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from frontdiag import fleet
+    from frontdiag.output import prepare_out_dir
+
+    if out is None:
+        raise ConfigError("several recordings need --out DIR (one result folder each)")
+    tasks = fleet.plan_tasks(logs, out, opts, fail_on=fail_on, csv=csv, force=force)
+    out = prepare_out_dir(out, [t.path for t in tasks])
+    err = Console(stderr=True)
+    show = not quiet and not as_json
+    with Progress(TextColumn("[bold]fleet[/]"), BarColumn(), MofNCompleteColumn(),
+                  TextColumn("recordings"), TimeElapsedColumn(), console=err,
+                  transient=True, disable=not show) as bar:
+        task = bar.add_task("fleet", total=len(tasks))
+
+        def on_row(row: dict[str, Any]) -> None:
+            bar.advance(task)
+            if row["status"] == "error":
+                err.print(f"[red]error[/] {escape(str(row['error']))}")
+
+        if scheduler:
+            rows = fleet.run_dask(tasks, scheduler, jobs, on_row)
+        else:
+            rows = fleet.run_local(tasks, jobs, on_row)
+    path = fleet.write_summary(out, rows)
+    code = fleet.worst_exit(rows)
+    if as_json:
+        typer.echo(json.dumps({"summary": str(path), "exit_code": code, "recordings": rows},
+                              indent=2, default=str))
+    elif not quiet:
+        render_summary(Console(), rows, path)
+    return code
+
+
+def render_summary(con: Any, rows: list[dict[str, Any]], path: Path) -> None:
+    from rich.markup import escape
+    from rich.table import Table
+
+    t = Table(title=f"fleet: {len(rows)} recordings", title_justify="left")
+    for c, j in (("recording", "left"), ("status", "left"), ("frames", "right"),
+                 ("coverage", "right"), ("ok", "right"), ("warn", "right"), ("fail", "right"),
+                 ("episodes", "right"), ("gate", "left"), ("s", "right")):
+        t.add_column(c, justify=j, min_width=len(c),  # type: ignore[arg-type]
+                     overflow="fold")
+    for r in rows:
+        cov = "" if r["coverage"] is None else f"{100 * r['coverage']:.0f} %"
+        status = {"ok": "ok", "skipped": "[dim]skipped[/]",
+                  "error": "[red]error[/]"}[r["status"]]
+        gate = {"passed": "[green]passed[/]", "failed": "[red]failed[/]"}.get(r["gate"], "")
+        t.add_row(escape(r["recording"]), status, str(r["frames"]), cov, str(r["ok"]),
+                  str(r["warn"]), str(r["fail"]), str(r["episodes"]), gate,
+                  f"{r['seconds']:.1f}")
+    con.print(t)
+    errors = [r for r in rows if r["status"] == "error"]
+    for r in errors:
+        con.print(f"[red]error[/] {escape(str(r['error']))}")
+    con.print(f"summary: {escape(str(path))} (one result folder per recording beside it; "
+              "skipped: its result was current)")

@@ -1,0 +1,292 @@
+"""Many recordings: one result folder each and a fleet summary, on local processes or Dask.
+
+Each recording is one task (:func:`analyse_one`): it is analysed in one process, its result
+folder written (``frames.parquet``, ``manifest.json``, ``episodes.parquet``, ``rules.json``)
+and one summary row returned. A result folder also holds ``fleet.json``: the recording's content
+hash and the rules and options it was analysed with; a later run with the same three skips the
+recording and reads its row back (resume). A recording that cannot be read becomes a row with
+its error; the others go on. The tasks run on a local process pool, or on Dask distributed
+(``scheduler="local"`` starts a ``LocalCluster``; ``tcp://HOST:PORT`` joins a running one, whose
+workers must see the recordings and the output folder at the same paths).
+"""
+
+from __future__ import annotations
+
+import glob
+import hashlib
+import json
+import logging
+import time
+from collections.abc import Callable, Iterable
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from frontdiag import __version__
+from frontdiag.errors import EXIT_INTERNAL, EXIT_OK, ConfigError, FrontdiagError
+
+log = logging.getLogger(__name__)
+
+SUMMARY_FILE = "fleet_summary.parquet"
+STAMP_FILE = "fleet.json"
+RECORDING_SUFFIXES = (".bag", ".mcap", ".db3")
+SUMMARY_COLUMNS = ["recording", "path", "status", "frames", "coverage", "ok", "warn", "fail",
+                   "episodes", "gate", "exit_code", "seconds", "error"]
+
+
+def is_recording(path: Path) -> bool:
+    """Whether ``path`` is one recording (a file, a ROS 2 bag folder, split ROS 1 bags)."""
+    from frontdiag.io.readers import plan
+
+    try:
+        plan(path)
+    except FrontdiagError:
+        return False
+    return True
+
+
+def discover(inputs: Iterable[str | Path]) -> list[Path]:
+    """Recordings named by files, folders of recordings and glob patterns, in a stable order.
+
+    A folder that is itself a recording (a ROS 2 bag folder, a folder of split .bag files) is
+    one recording; any other folder is searched one level deep for recording files and bag
+    folders. A name that matches nothing is an error (a typo should not give an empty fleet).
+    """
+    found: list[Path] = []
+    for item in inputs:
+        text = str(item)
+        paths = [Path(p) for p in sorted(glob.glob(text))] if glob.has_magic(text) \
+            else [Path(text)]
+        if not paths or not paths[0].exists():
+            raise ConfigError(f"{text}: no such file, folder or matching recording",
+                              hint="pass recordings, folders of recordings or a quoted glob")
+        for p in paths:
+            if p.is_dir() and not (p / "metadata.yaml").exists() and not list(p.glob("*.bag")):
+                found += sorted(c for c in p.iterdir()
+                                if (c.is_file() and c.suffix in RECORDING_SUFFIXES)
+                                or (c.is_dir() and (c / "metadata.yaml").exists()))
+            else:
+                found.append(p)
+    out = list(dict.fromkeys(p.resolve() for p in found))
+    if not out:
+        raise ConfigError(f"no recording (.bag, .mcap, .db3, bag folder) in {', '.join(map(str, inputs))}")
+    return out
+
+
+def result_names(paths: list[Path]) -> list[str]:
+    """One folder name per recording: its name without suffix, made unique by a path hash."""
+    stems = [p.name[: -len(p.suffix)] if p.suffix in RECORDING_SUFFIXES else p.name
+             for p in paths]
+    return [s if stems.count(s) == 1 else f"{s}-{hashlib.sha1(str(p).encode()).hexdigest()[:6]}"
+            for s, p in zip(stems, paths, strict=True)]
+
+
+def content_hash(path: Path) -> str:
+    """BLAKE2b of the recording's bytes (every file of a folder, by relative name)."""
+    h = hashlib.blake2b(digest_size=16)
+    files = sorted(f for f in path.rglob("*") if f.is_file()) if path.is_dir() else [path]
+    for f in files:
+        h.update(str(f.relative_to(path) if path.is_dir() else f.name).encode())
+        with open(f, "rb") as fh:
+            while chunk := fh.read(1 << 20):
+                h.update(chunk)
+    return h.hexdigest()
+
+
+def setup_hash(opts: Any) -> str:
+    """What decides a result besides the recording: frontdiag, the rules as loaded (after
+    overrides and selection) and the analysis options (the number of processes aside)."""
+    from frontdiag.verdicts import load_ruleset
+
+    rules: Any = None
+    if opts.rules:
+        rules = load_ruleset(Path(opts.rules_dir) if opts.rules_dir else None,
+                             Path(opts.rules_overrides) if opts.rules_overrides else None,
+                             select=opts.select, ignore=opts.ignore).to_dict()
+    options = asdict(replace(opts, jobs=1))
+    blob = json.dumps({"frontdiag": __version__, "rules": rules, "options": options},
+                      sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()[:16]
+
+
+@dataclass(frozen=True)
+class Task:
+    """One recording of a fleet run (picklable: it travels to a worker)."""
+
+    path: Path
+    out: Path  # its result folder
+    opts: Any  # AnalysisOptions
+    setup: str  # setup_hash(opts)
+    fail_on: str = "fail"
+    csv: bool = False
+    force: bool = False
+
+
+def analyse_one(task: Task) -> dict[str, Any]:
+    """Analyse one recording into its result folder and return its summary row; a recording
+    whose folder already holds a result of the same content, rules and options is skipped."""
+    import cv2
+
+    cv2.setNumThreads(1)  # the tasks are the parallelism
+    t0 = time.perf_counter()
+    name = task.out.name
+    row: dict[str, Any] = {"recording": name, "path": str(task.path)}
+    try:
+        digest = content_hash(task.path)
+        stamp = task.out / STAMP_FILE
+        if not task.force and stamp.exists():
+            old = json.loads(stamp.read_text())
+            if old.get("content") == digest and old.get("setup") == task.setup \
+                    and (task.out / "frames.parquet").exists():
+                return _complete({**old["summary"], "status": "skipped",
+                                  "path": str(task.path)})
+        row.update(_analyse(task))
+        row["status"] = "error" if row.get("error") else "ok"
+        row["seconds"] = round(time.perf_counter() - t0, 3)
+        if row["status"] == "ok":
+            stamp.write_text(json.dumps({"content": digest, "setup": task.setup,
+                                         "summary": _complete(row)}, indent=1, default=str)
+                             + "\n")
+    except FrontdiagError as exc:
+        row.update(status="error", error=str(exc), exit_code=exc.exit_code)
+    except Exception as exc:  # a bug on one recording must not stop the others
+        log.exception("internal error on %s", task.path)
+        row.update(status="error", error=f"internal error: {exc}", exit_code=EXIT_INTERNAL)
+    row["seconds"] = round(time.perf_counter() - t0, 3)
+    return _complete(row)
+
+
+def _analyse(task: Task) -> dict[str, Any]:
+    from frontdiag.api import run_analysis
+    from frontdiag.output import write_manifest, write_table
+    from frontdiag.report import write_episodes, write_rules_snapshot
+    from frontdiag.verdicts import gate
+
+    result = run_analysis(task.path, task.opts)
+    task.out.mkdir(parents=True, exist_ok=True)
+    write_table(task.out, result.table, csv=task.csv)
+    write_manifest(task.out, result.manifest)
+    row: dict[str, Any] = summarise(result.table, result.manifest)
+    if result.verdicts is not None:
+        write_episodes(task.out, result.verdicts)
+        write_rules_snapshot(task.out, result.ruleset)
+        g = gate(result.verdicts, fail_on=task.fail_on)  # type: ignore[arg-type]
+        row.update(episodes=len(result.verdicts.episodes),
+                   gate="passed" if g.passed else "failed", exit_code=g.exit_code)
+    if result.fault is not None:  # damage part-way: the frames before it are kept
+        row.update(error=str(result.fault), exit_code=result.fault.exit_code)
+    elif result.interrupted:
+        row.update(error="interrupted", exit_code=130)
+    return row
+
+
+def summarise(table: pd.DataFrame, manifest: dict[str, Any]) -> dict[str, Any]:
+    """Frames analysed, coverage (analysed / messages on the analysed topics) and frames per
+    verdict."""
+    counts = manifest.get("counts", {})
+    messages = sum(c.get("messages", 0) for c in counts.values())
+    analysed = sum(c.get("analysed", 0) for c in counts.values())
+    row: dict[str, Any] = {"frames": len(table),
+                           "coverage": round(analysed / messages, 4) if messages else None}
+    if "verdict" in table.columns:
+        vc = table["verdict"].value_counts()
+        row.update({k: int(vc.get(k, 0)) for k in ("ok", "warn", "fail")})
+    return row
+
+
+def _complete(row: dict[str, Any]) -> dict[str, Any]:
+    defaults: dict[str, Any] = {"frames": 0, "coverage": None, "ok": 0, "warn": 0, "fail": 0,
+                                "episodes": 0, "gate": "", "exit_code": EXIT_OK, "seconds": 0.0,
+                                "error": ""}
+    return {c: row.get(c, defaults.get(c)) if row.get(c) is not None else defaults.get(c)
+            for c in SUMMARY_COLUMNS}
+
+
+def plan_tasks(inputs: Iterable[str | Path], out: Path, opts: Any, *, fail_on: str = "fail",
+               csv: bool = False, force: bool = False) -> list[Task]:
+    paths = discover(inputs)
+    setup = setup_hash(opts)
+    one = replace(opts, jobs=1)
+    return [Task(p, out / n, one, setup, fail_on, csv, force)
+            for p, n in zip(paths, result_names(paths), strict=True)]
+
+
+RowFn = Callable[[dict[str, Any]], None]
+
+
+def run_local(tasks: list[Task], jobs: int, on_row: RowFn | None = None) -> list[dict[str, Any]]:
+    """The tasks on ``jobs`` local processes (in this process when ``jobs`` is 1)."""
+    rows: list[dict[str, Any] | None] = [None] * len(tasks)
+    if jobs <= 1 or len(tasks) == 1:
+        for i, t in enumerate(tasks):
+            rows[i] = analyse_one(t)
+            if on_row:
+                on_row(rows[i])  # type: ignore[arg-type]
+    else:
+        from frontdiag.parallel import _context
+
+        with ProcessPoolExecutor(max_workers=jobs, mp_context=_context()) as pool:
+            futs = {pool.submit(analyse_one, t): i for i, t in enumerate(tasks)}
+            for fut in as_completed(futs):
+                rows[futs[fut]] = fut.result()
+                if on_row:
+                    on_row(rows[futs[fut]])  # type: ignore[arg-type]
+    return [r for r in rows if r is not None]
+
+
+def run_dask(tasks: list[Task], scheduler: str, jobs: int, on_row: RowFn | None = None,
+             cluster_kwargs: dict[str, Any] | None = None) -> list[dict[str, Any]]:
+    """The tasks on Dask distributed: ``scheduler`` is ``local`` (a LocalCluster of ``jobs``
+    single-threaded workers) or the address of a running scheduler."""
+    try:
+        from dask.distributed import Client, LocalCluster
+        from dask.distributed import as_completed as dask_completed
+    except ImportError as exc:
+        from frontdiag.errors import OptionalDependencyError
+
+        raise OptionalDependencyError(
+            "--scheduler needs Dask distributed", hint="pip install 'frontdiag[fleet]'") from exc
+    cluster = None
+    if scheduler == "local":
+        kw = {"n_workers": max(jobs, 1), "threads_per_worker": 1, "dashboard_address": None}
+        kw.update(cluster_kwargs or {})
+        cluster = LocalCluster(**kw)
+        client = Client(cluster)
+    else:
+        try:
+            client = Client(scheduler, timeout="10s")
+        except OSError as exc:
+            raise ConfigError(f"--scheduler {scheduler}: cannot connect ({exc})",
+                              hint="start one with `dask scheduler` and `dask worker ADDRESS`, "
+                                   "or pass --scheduler local") from exc
+    try:
+        futs = client.map(analyse_one, tasks, pure=False)
+        index = {f.key: i for i, f in enumerate(futs)}
+        rows: list[dict[str, Any] | None] = [None] * len(tasks)
+        for fut in dask_completed(futs):
+            rows[index[fut.key]] = fut.result()
+            if on_row:
+                on_row(rows[index[fut.key]])  # type: ignore[arg-type]
+        return [r for r in rows if r is not None]
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def summary_table(rows: list[dict[str, Any]]) -> pd.DataFrame:
+    return pd.DataFrame(rows, columns=SUMMARY_COLUMNS)
+
+
+def write_summary(out: Path, rows: list[dict[str, Any]]) -> Path:
+    path = out / SUMMARY_FILE
+    summary_table(rows).to_parquet(path, index=False)
+    return path
+
+
+def worst_exit(rows: list[dict[str, Any]]) -> int:
+    """The fleet's exit code: the worst of its recordings' (gate 1, bad input 2, bug 3)."""
+    return max((int(r.get("exit_code") or 0) for r in rows), default=EXIT_OK)

@@ -1,0 +1,79 @@
+"""Fleet runs: one result folder per recording, a summary, resume, errors, Dask."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from recording_factory import write_recording
+
+from frontdiag.api import AnalysisOptions
+from frontdiag.cli import main
+from frontdiag.fleet import SUMMARY_COLUMNS, discover, plan_tasks, run_dask, run_local
+
+STABLE = [c for c in SUMMARY_COLUMNS if c not in ("seconds", "status", "path")]
+
+
+@pytest.fixture(scope="module")
+def logs(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    d = tmp_path_factory.mktemp("logs")
+    for i in range(3):
+        write_recording(d / f"r{i}.mcap", "mcap", n=12, seed=i, shift=1 + i)
+    (d / "bad.mcap").write_bytes(b"not a recording")
+    return d
+
+
+def _summary(out: Path) -> pd.DataFrame:
+    return pd.read_parquet(out / "fleet_summary.parquet")
+
+
+def test_fleet_cli_writes_a_folder_each_resumes_and_reports_the_bad_one(
+        logs: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "out"
+    code = main(["analyze", str(logs), "--out", str(out), "--jobs", "2", "--json"])
+    assert code == 2  # the bad recording: the worst exit code
+    doc = json.loads(capsys.readouterr().out)
+    by = {r["recording"]: r for r in doc["recordings"]}
+    assert set(by) == {"bad", "r0", "r1", "r2"}
+    assert by["bad"]["status"] == "error" and "unknown container" in by["bad"]["error"]
+    for name in ("r0", "r1", "r2"):
+        assert by[name]["status"] == "ok" and by[name]["frames"] == 12
+        assert by[name]["coverage"] == 1.0
+        assert by[name]["ok"] + by[name]["warn"] + by[name]["fail"] == 12
+        assert (out / name / "frames.parquet").exists()
+        assert (out / name / "episodes.parquet").exists()
+        assert by[name]["exit_code"] in (0, 1)
+    summary = _summary(out)
+    assert list(summary.columns) == SUMMARY_COLUMNS and len(summary) == 4
+    # a second run skips the current results; a changed recording is analysed again
+    write_recording(logs / "r1.mcap", "mcap", n=14, seed=1)
+    code = main(["analyze", str(logs / "r*.mcap"), "--out", str(out), "--json"])
+    by2 = {r["recording"]: r for r in json.loads(capsys.readouterr().out)["recordings"]}
+    assert [by2[n]["status"] for n in ("r0", "r1", "r2")] == ["skipped", "ok", "skipped"]
+    assert by2["r1"]["frames"] == 14
+    assert code == max(by2[n]["exit_code"] for n in by2)
+    for n in ("r0", "r2"):
+        assert {k: by2[n][k] for k in STABLE} == {k: by[n][k] for k in STABLE}
+
+
+def test_discover_reads_folders_and_globs(logs: Path) -> None:
+    assert [p.name for p in discover([logs])] == ["bad.mcap", "r0.mcap", "r1.mcap", "r2.mcap"]
+    assert [p.name for p in discover([str(logs / "r[02].mcap")])] == ["r0.mcap", "r2.mcap"]
+    with pytest.raises(Exception, match="no such file"):
+        discover([logs / "nope*.mcap"])
+
+
+def test_dask_local_cluster_gives_the_local_summary(logs: Path, tmp_path: Path) -> None:
+    pytest.importorskip("dask.distributed")
+    opts = AnalysisOptions()
+    local = run_local(plan_tasks([logs], tmp_path / "a", opts), jobs=1)
+    dask = run_dask(plan_tasks([logs], tmp_path / "b", opts), "local", 2,
+                    cluster_kwargs={"processes": False})
+    assert [{k: r[k] for k in STABLE} for r in dask] == \
+        [{k: r[k] for k in STABLE} for r in local]
+    a = pd.read_parquet(tmp_path / "a" / "r0" / "frames.parquet")
+    b = pd.read_parquet(tmp_path / "b" / "r0" / "frames.parquet")
+    cols = [c for c in a.columns if not c.startswith("ms_")]
+    pd.testing.assert_frame_equal(a[cols], b[cols])
