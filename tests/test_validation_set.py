@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import hashlib
 import json
+import shutil
+import subprocess
 import sys
 from pathlib import Path
 
@@ -190,3 +192,32 @@ def test_score_built_recordings() -> None:
             want = sum(1 for *_, c in by[name]["labels"] if c == cond)
             assert got[cond].episodes == want, (name, cond)
         assert rep.frames == build.expected_frames(by[name])
+
+
+@pytest.mark.skipif(shutil.which("git") is None, reason="git not installed")
+@pytest.mark.parametrize("bare", [True, False])
+def test_source_reads_a_git_directory_at_the_manifest_commit(tmp_path: Path, bare: bool) -> None:
+    work = tmp_path / "w"
+    work.mkdir()
+    (work / "a.txt").write_text("first\n")
+    git = ["git", "-C", str(work), "-c", "user.name=t", "-c", "user.email=t@t"]
+    subprocess.run([*git, "init", "-q"], check=True)
+    subprocess.run([*git, "add", "a.txt"], check=True)
+    subprocess.run([*git, "commit", "-qm", "one"], check=True)
+    first = subprocess.run([*git, "rev-parse", "HEAD"], check=True, capture_output=True,
+                           text=True).stdout.strip()
+    (work / "a.txt").write_text("second\n")
+    subprocess.run([*git, "commit", "-qam", "two"], check=True)
+    root = tmp_path / "src"
+    (root / "o+n").mkdir(parents=True)
+    if bare:
+        subprocess.run(["git", "clone", "-q", "--bare", str(work), str(root / "o+n" / "repo")],
+                       check=True)
+    else:
+        shutil.copytree(work, root / "o+n" / "repo")
+    src = build.Source("o/n", first, root)
+    assert src.read("a.txt") == b"first\n"
+    with pytest.raises(ConfigError, match=r"cannot read missing\.txt"):
+        src.read("missing.txt")
+    with pytest.raises(ConfigError, match="not found"):
+        build.Source("o/other", first, root).read("a.txt")

@@ -14,7 +14,8 @@ container (ROS 1 bag, ROS 2 bag with sqlite3 or MCAP storage, plain MCAP) with i
 
 Sources are looked up under ``--src`` (default ``/work/.mirror``) as ``owner+name/`` holding
 either the repository's files (a plain checkout or download) or a bare git directory ``repo``
-(what the ``fetch`` tool brings), read with ``git show COMMIT:PATH``.
+(what the ``fetch`` tool brings; a checkout ``repo/.git`` works too), read with
+``git show COMMIT:PATH``.
 """
 
 from __future__ import annotations
@@ -120,6 +121,8 @@ class Source:
         if plain.is_file():
             return plain.read_bytes()
         gitdir = self.base / "repo"
+        if (gitdir / ".git").is_dir():  # a checkout rather than a bare git directory
+            gitdir = gitdir / ".git"
         if gitdir.is_dir():
             r = subprocess.run(["git", "--git-dir", str(gitdir), "show", f"{self.commit}:{path}"],
                                capture_output=True, check=False)
