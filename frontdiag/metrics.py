@@ -54,9 +54,11 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
     _M("n_keypoints", "count", "camera", "ORB keypoints detected", "higher"),
     _M("entropy_norm", "ratio", "camera",
        "keypoint spatial entropy over an 8x6 grid divided by log2(48); >0.74 ok, <0.6 alarm", "higher"),
-    _M("keypoint_fill", "ratio", "camera",
-       "n_keypoints / (feature budget x min(1, pixels / 1280x720)): the share of the budget a "
-       "frame of this size should fill; ~1 healthy, the lesson's failed frame (~120 of 1000) 0.12",
+    _M("keypoint_fill", "x expected", "camera",
+       "n_keypoints / expected count, the expected count being the feature budget x min(1, "
+       "pixels / 1280x720): 1 means the frame holds as many keypoints as a frame of its size "
+       "is expected to; it exceeds 1 when a frame smaller than 1280x720 fills more than its "
+       "prorated share (up to 3 at 640x480); a starved frame (~120 of 1000) reads 0.12",
        "higher"),
     _M("entropy_inliers_norm", "ratio", "camera",
        "entropy_norm of the essential-matrix inliers in this frame: where the constraints on the "
@@ -141,14 +143,21 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
        "RMS point-to-plane distance of inlier correspondences on well-defined map planes",
        "lower"),
     _M("icp_iters", "count", "lidar", "registration iterations", "lower"),
-    _M("lidar_eig_min", "points", "lidar",
+    _M("lidar_eig_min", "points of 20k", "lidar",
        "smallest eigenvalue of the point-to-plane J^T J at the solution, rotation as arc length "
-       "at the RMS range, scaled to the lesson's 20,000-point scan; ~2400 healthy, ~12 "
-       "degenerate (see docs/lidar.md)", "higher"),
+       "at the RMS range, scaled to a 20,000-point scan: the number of points out of 20,000 "
+       "that would see the weakest direction squarely; ~2400 healthy, ~12 degenerate (see "
+       "docs/lidar.md)", "higher"),
     _M("lidar_cond", "ratio", "lidar",
        "lambda_max/lambda_min of the same J^T J; ~35 healthy, >900 degenerate", "lower"),
     _M("lidar_weak_dir", "", "lidar",
        "the weakest eigenvector in words, sensor frame (x forward, y left, z up)"),
+    _M("lidar_weak_axis", "", "lidar",
+       "the axis carrying most of the weakest eigenvector: x, y, z (translation) or roll, pitch, "
+       "yaw; one of six values, to count over a run"),
+    _M("lidar_weak_vec", "unit vector", "lidar",
+       "the weakest eigenvector itself, (roll, pitch, yaw, x, y, z), rotation as arc length at "
+       "the RMS range; zeros for the axes a 2D scan does not observe"),
     _M("ms_lidar_preprocess", "ms", "lidar", "range filter + deskew + voxel downsampling",
        "lower"),
     _M("ms_lidar_register", "ms", "lidar", "registration + correspondences + spectrum", "lower"),

@@ -17,6 +17,14 @@ import pandas as pd
 from frontdiag.errors import ConfigError, RecordingError
 
 LIST_COLUMNS = ("conditions", "rules")
+VECTOR_COLUMNS = ("lidar_weak_vec",)
+"""Columns holding a list of floats per row (None where not computed)."""
+
+
+def _vector(v: Any) -> list[float] | None:
+    if isinstance(v, list | tuple | np.ndarray):
+        return [float(x) for x in v]
+    return None
 
 
 def prepare_out_dir(out: Path, inputs: list[Path]) -> Path:
@@ -36,6 +44,28 @@ def prepare_out_dir(out: Path, inputs: list[Path]) -> Path:
     return out
 
 
+RESULT_FILES = ("frames.parquet", "frames.csv", "manifest.json", "episodes.parquet")
+
+
+def refuse_overwrite(out: Path, force: bool) -> None:
+    """Stop before any work when ``out`` already holds a result, unless ``force``.
+
+    A result directory is what `explain`, `eval` and `--baseline` read later; replacing it by
+    accident loses the run it describes.
+    """
+    out = Path(out)
+    if force or not out.is_dir():
+        return
+    found = [name for name in RESULT_FILES if (out / name).exists()]
+    if found:
+        made_from = read_manifest(out).get("input", {}) if (out / "manifest.json").is_file() \
+            else {}
+        src = made_from.get("path") if isinstance(made_from, dict) else None
+        raise ConfigError(f"--out {out}: already holds a result ({', '.join(found)}"
+                          + (f", from {src}" if src else "") + ")",
+                          hint="pass --force to replace it, or choose another --out directory")
+
+
 def _csv_frame(table: pd.DataFrame) -> pd.DataFrame:
     df = table.copy()
     for col in LIST_COLUMNS:
@@ -43,6 +73,10 @@ def _csv_frame(table: pd.DataFrame) -> pd.DataFrame:
             df[col] = df[col].map(lambda v: ";".join(v) if isinstance(v, list | tuple | np.ndarray)
                                   else ("" if v is None or (isinstance(v, float) and np.isnan(v))
                                         else str(v)))
+    for col in VECTOR_COLUMNS:
+        if col in df.columns:
+            df[col] = df[col].map(lambda v: "" if _vector(v) is None
+                                  else " ".join(f"{x:g}" for x in _vector(v) or []))
     return df
 
 
@@ -51,7 +85,9 @@ def write_table(out: Path, table: pd.DataFrame, csv: bool = False) -> list[Path]
     df = table.copy()
     # mixed object columns (strings with NaN) must be strings for parquet
     for col in df.columns:
-        if df[col].dtype == object and col not in LIST_COLUMNS:
+        if col in VECTOR_COLUMNS:
+            df[col] = df[col].map(_vector)
+        elif df[col].dtype == object and col not in LIST_COLUMNS:
             df[col] = df[col].map(lambda v: None if v is None or (isinstance(v, float)
                                                                   and np.isnan(v)) else str(v))
     df.to_parquet(written[0], index=False)
@@ -95,6 +131,10 @@ def read_table(result: Path) -> pd.DataFrame:
                 if col in df.columns:
                     df[col] = df[col].map(lambda v: [] if not isinstance(v, str) or not v
                                           else v.split(";"))
+            for col in VECTOR_COLUMNS:
+                if col in df.columns:
+                    df[col] = df[col].map(lambda v: [float(x) for x in v.split()]
+                                          if isinstance(v, str) and v else None)
             return df
         df = pd.read_parquet(result)
     except Exception as exc:

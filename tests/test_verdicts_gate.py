@@ -214,7 +214,11 @@ def test_console_summary_lists_episodes_worst_first_with_commands(warn_only, rul
     assert "gate failed" in out
 
 
-def test_reanalyse_command_clamps_at_the_start() -> None:
-    ep = {"start_t_rel_s": 0.1, "end_t_rel_s": 0.4, "sensor": "camera", "topic": "/cam"}
-    assert reanalyse_command("x.bag", ep) == \
-        "frontdiag analyze x.bag --start 0.0 --end 0.9 --camera-topic /cam"
+def test_reanalyse_command_clamps_at_the_start_and_keeps_its_result() -> None:
+    ep = {"start_t_rel_s": 0.1, "end_t_rel_s": 0.4, "sensor": "camera", "topic": "/cam",
+          "rule": "FD-DET-001"}
+    assert reanalyse_command("x.bag", ep) == ("frontdiag analyze x.bag --start 0.0 --end 0.9 "
+                                              "--camera-topic /cam "
+                                              "--out frontdiag-episodes/FD-DET-001-0.0s")
+    # beside the run's own result, never onto it
+    assert reanalyse_command("x.bag", ep, out_base="res").endswith("--out res/FD-DET-001-0.0s")

@@ -14,6 +14,7 @@ from rich.console import Console
 from typer import Abort as _Abort
 from typer import Exit as _Exit
 
+from frontdiag.cli._console import make_console
 from frontdiag.errors import (
     EXIT_INPUT,
     EXIT_INTERNAL,
@@ -130,7 +131,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _err_console() -> Console:
-    return Console(stderr=True)
+    return make_console(stderr=True)
 
 
 def run() -> None:

@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 from rich.console import Console
+from rich.markup import escape
 from rich.table import Table
 
 # (column, label with unit, format)
@@ -19,7 +20,7 @@ CAMERA_SUMMARY = [
     ("inlier_ratio", "inlier ratio w", "{:.2f}"),
     ("h_over_e", "H/E inliers", "{:.2f}"),
     ("parallax_med_deg", "parallax (deg)", "{:.2f}"),
-    ("pose_info_cond", "pose info λmax/λmin", "{:.0f}"),
+    ("pose_info_cond", "pose info λmax/λmin", "sig"),
     ("d_mean_intensity", "Δ mean (grey lvl)", "{:+.1f}"),
     ("photo_residual_med", "photo residual (grey lvl)", "{:.1f}"),
     ("ms_total", "latency (ms)", "{:.1f}"),
@@ -30,10 +31,27 @@ LIDAR_SUMMARY = [
     ("deskew_m", "deskew (m)", "{:.3f}"),
     ("icp_fitness", "fitness", "{:.2f}"),
     ("icp_rmse_m", "RMSE (m)", "{:.3f}"),
-    ("lidar_eig_min", "λmin (normalised)", "{:.0f}"),
-    ("lidar_cond", "condition number", "{:.0f}"),
+    ("lidar_eig_min", "λmin (points of 20,000)", "sig"),
+    ("lidar_cond", "condition number λmax/λmin", "sig"),
     ("ms_total", "latency (ms)", "{:.1f}"),
 ]
+
+
+def fmt_value(fmt: str, value: float) -> str:
+    """Format a summary value: ``"sig"`` keeps three significant figures without an exponent
+    (λmin 0.456 must not print as 0, nor 2400 as 2.4e+03); a value that rounds to zero never
+    prints as -0.000."""
+    if fmt == "sig":
+        if value == 0 or not np.isfinite(value):
+            text = f"{value:g}"
+        else:
+            digits = max(0, 2 - int(np.floor(np.log10(abs(value)))))
+            text = f"{value:.{digits}f}"
+    else:
+        text = fmt.format(value)
+    if text.startswith("-") and float(text.rstrip("%")) == 0:
+        text = text[1:]
+    return text
 
 
 def _stats(s: pd.Series) -> dict[str, float] | None:
@@ -61,7 +79,25 @@ def sensor_summaries(table: pd.DataFrame) -> dict[str, Any]:
     return out
 
 
-def render_analysis(console: Console, result: Any, out_dir: Path | None) -> None:
+def weak_direction_line(rows: pd.DataFrame) -> str | None:
+    """The LiDAR's weakest direction over the run, by the categorical axis: "x (forward) in 41
+    of 60 scans" and the words of the most common reading."""
+    if "lidar_weak_axis" not in rows or rows.empty:
+        return None
+    axes = rows["lidar_weak_axis"].astype(str)
+    axes = axes[axes.str.len() > 0]
+    if axes.empty:
+        return None
+    counts = axes.value_counts()
+    top = str(counts.index[0])
+    words = rows.loc[axes.index][axes == top]["lidar_weak_dir"].astype(str).value_counts()
+    shown = ", ".join(f"{k} {int(v)}" for k, v in counts.items())
+    return (f"weakest direction (smallest eigenvalue's eigenvector): {top} in {int(counts.iloc[0])}"
+            f" of {len(rows)} scans ({words.index[0]}); by axis: {shown}")
+
+
+def render_analysis(console: Console, result: Any, out_dir: Path | None,
+                    written: list[Path] | None = None) -> None:
     table = result.table
     man = result.manifest
     topics = man["topics"]
@@ -85,11 +121,20 @@ def render_analysis(console: Console, result: Any, out_dir: Path | None) -> None
             if st is None:
                 t.add_row(label, "—", "—", "—")
                 continue
-            t.add_row(label, *(fmt.format(st[k]) for k in ("p10", "median", "p90")))
+            t.add_row(label, *(fmt_value(fmt, st[k]) for k in ("p10", "median", "p90")))
         console.print(t)
+        if sensor == "lidar":
+            line = weak_direction_line(rows)
+            if line:
+                console.print(f"[dim]{escape(line)}[/]", highlight=False)
     if man.get("intrinsics"):
         console.print(f"[dim]intrinsics: {man['intrinsics']['source']}[/]")
     for note in result.notes:
         console.print(f"[yellow]note:[/] {note}", highlight=False)
-    if out_dir is not None:
-        console.print(f"[green]wrote[/] {out_dir}/frames.parquet, manifest.json")
+    if written:
+        console.print("[green]wrote[/] " + ", ".join(escape(str(p)) for p in written),
+                      highlight=False)
+    elif out_dir is None:
+        console.print("[yellow]nothing saved[/]: pass --out DIR to keep the table "
+                      "(frames.parquet, episodes.parquet, manifest.json) for `frontdiag explain "
+                      "DIR --frame N`, `frontdiag eval DIR` and `--baseline DIR`", highlight=False)

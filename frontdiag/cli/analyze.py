@@ -107,7 +107,6 @@ def analyze_cmd(
     junit: Path | None = typer.Option(None, "--junit", help="Write JUnit XML (one case per rule)."),
     as_json: bool = typer.Option(False, "--json",
                                  help="Print a machine-readable summary on stdout."),
-    quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar or table."),
     jobs: int = typer.Option(1, "--jobs", "-j",
                              help="Processes: a long recording is split into time windows "
                                   "analysed in parallel (same table as one process); a fleet "
@@ -116,16 +115,24 @@ def analyze_cmd(
                                          help="Fleet on Dask: tcp://HOST:PORT of a running "
                                               "scheduler, or 'local' for a LocalCluster of "
                                               "--jobs workers (needs frontdiag[fleet])."),
+    quiet: bool = typer.Option(False, "--quiet", "-q",
+                               help="No progress bar or table; a failed gate's reasons still go "
+                                    "to stderr."),
     force: bool = typer.Option(False, "--force",
-                               help="Fleet: re-analyse recordings whose result is current."),
+                               help="Replace an earlier result in --out (refused otherwise); "
+                                    "fleet: re-analyse recordings whose result is current."),
 ) -> int:
-    from rich.console import Console
-
     from frontdiag.api import AnalysisOptions
     from frontdiag.camera.frontend import CameraParams
+    from frontdiag.cli._console import make_console
     from frontdiag.errors import EXIT_INTERRUPTED, EXIT_OK, ConfigError
     from frontdiag.lidar.frontend import LidarParams
-    from frontdiag.output import prepare_out_dir, write_manifest, write_table
+    from frontdiag.output import (
+        prepare_out_dir,
+        refuse_overwrite,
+        write_manifest,
+        write_table,
+    )
 
     if fail_on not in ("warn", "fail", "never"):
         raise ConfigError(f"--fail-on {fail_on!r}: choose warn, fail or never")
@@ -145,6 +152,8 @@ def analyze_cmd(
 
     fleet = is_fleet(logs, scheduler)
     log = logs[0]
+    if out is not None and not fleet:
+        refuse_overwrite(out, force)
     out_dir = None if out is None or fleet else prepare_out_dir(out, [log])
     opts = AnalysisOptions(
         camera_topic=camera_topic, lidar_topic=lidar_topic, odom_topic=odom_topic,
@@ -169,7 +178,7 @@ def analyze_cmd(
         from frontdiag.verdicts import parse_max_fraction
 
         limits = parse_max_fraction(max_fraction)
-    err = Console(stderr=True)
+    err = make_console(stderr=True)
     result = _run_with_progress(log, opts, err, show=not quiet and not as_json)
     gate_result = None
     if result.verdicts is not None:
@@ -177,36 +186,74 @@ def analyze_cmd(
 
         gate_result = gate(result.verdicts, fail_on=fail_on,  # type: ignore[arg-type]
                            max_fraction=limits, baseline=baseline)
+    if result.interrupted or result.fault is not None:
+        gate_result = _incomplete(gate_result, result)
+    written: list[Path] = []
     if out_dir is not None:
-        write_table(out_dir, result.table, csv=(fmt == "csv"))
-        write_manifest(out_dir, result.manifest)
+        written += write_table(out_dir, result.table, csv=(fmt == "csv"))
+        written.append(write_manifest(out_dir, result.manifest))
         if result.verdicts is not None:
             from frontdiag.report import write_episodes, write_rules_snapshot
 
-            write_episodes(out_dir, result.verdicts)
-            write_rules_snapshot(out_dir, result.ruleset)
+            written.append(write_episodes(out_dir, result.verdicts))
+            written.append(write_rules_snapshot(out_dir, result.ruleset))
     if junit is not None and gate_result is not None:
         from frontdiag.report import write_junit
 
-        write_junit(junit, result.verdicts, gate_result)
+        written.append(write_junit(junit, result.verdicts, gate_result,
+                                   suite=_suite_name(log)))
     if as_json:
-        typer.echo(json.dumps(_json_summary(result, gate_result), indent=2, default=str))
+        typer.echo(json.dumps(_json_summary(result, gate_result, written), indent=2,
+                              default=str))
     elif not quiet:
         from frontdiag.cli._render import render_analysis
 
-        con = Console()
-        render_analysis(con, result, out_dir)
+        con = make_console()
+        render_analysis(con, result, out_dir, written)
         if gate_result is not None:
             from frontdiag.report import reanalyse_command, render_console_summary
 
-            render_console_summary(con, result.verdicts, gate_result,
-                                   reanalyse_cmd=lambda e: reanalyse_command(str(log), e))
+            render_console_summary(
+                con, result.verdicts, gate_result,
+                reanalyse_cmd=lambda e: reanalyse_command(str(log), e, out_base=out_dir))
+    if quiet and gate_result is not None and not gate_result.passed:
+        # the gate's own reasons; an interruption or damage is reported on its own line below
+        reasons = [r for r in gate_result.reasons if r != gate_result.incomplete]
+        if reasons:
+            err.print(f"gate failed (fail-on {gate_result.fail_on}):", highlight=False)
+        for reason in reasons:
+            err.print(f"  - {reason}", highlight=False, markup=False, soft_wrap=True)
     if result.interrupted:
-        err.print("[yellow]interrupted[/]: the frames analysed so far were kept")
+        err.print("[yellow]interrupted[/]: the frames analysed so far were kept"
+                  + ("" if written else " in memory only (no --out, nothing saved)"))
         return EXIT_INTERRUPTED
     if result.fault is not None:
         raise result.fault
     return gate_result.exit_code if gate_result is not None else EXIT_OK
+
+
+def _suite_name(log: Path) -> str:
+    """JUnit suite name: the recording's file (or bag folder) name."""
+    return f"frontdiag {log.resolve().name or log}"
+
+
+def _incomplete(gate_result: Any, result: Any) -> Any:
+    """A run that did not reach the end of the recording cannot pass its gate: the verdicts
+    cover only the frames before the interruption or the damage."""
+    if gate_result is None:
+        return None
+    from dataclasses import replace
+
+    from frontdiag.errors import EXIT_INTERRUPTED
+
+    if result.interrupted:
+        why, code = "interrupted: the verdicts cover only the frames analysed before Ctrl-C", \
+            EXIT_INTERRUPTED
+    else:
+        why, code = f"input damaged: the verdicts cover only the frames before it ({result.fault})", \
+            getattr(result.fault, "exit_code", 2)
+    return replace(gate_result, exit_code=code, reasons=[*gate_result.reasons, why],
+                   incomplete=why)
 
 
 def _split(values: list[str] | None) -> list[str] | None:
@@ -240,12 +287,16 @@ def _run_with_progress(log: Path, opts: Any, err: Any, show: bool) -> Any:
         return run_analysis(log, opts, progress=progress)
 
 
-def _json_summary(result: Any, gate_result: Any) -> dict[str, Any]:
+def _json_summary(result: Any, gate_result: Any, written: list[Path]) -> dict[str, Any]:
     from frontdiag.cli._render import sensor_summaries
+    from frontdiag.schemas import ANALYZE_SCHEMA
 
-    out = {"input": result.manifest["input"], "topics": result.manifest["topics"],
+    out = {"schema": ANALYZE_SCHEMA, "input": result.manifest["input"],
+           "topics": result.manifest["topics"],
            "counts": result.manifest["counts"], "notes": result.notes,
            "fault": None if result.fault is None else str(result.fault),
+           "interrupted": bool(result.interrupted),
+           "written": [str(p) for p in written],
            "sensors": sensor_summaries(result.table)}
     if gate_result is not None:
         from frontdiag.report import to_json

@@ -135,9 +135,9 @@ def _run(o: dict) -> int:
 
 
 def _err(message: str) -> None:
-    from rich.console import Console
+    from frontdiag.cli._console import make_console
 
-    Console(stderr=True).print(message, highlight=False, markup=False)
+    make_console(stderr=True).print(message, highlight=False, markup=False)
 
 
 def _emit(o: dict, data: dict, grids: list) -> None:
@@ -151,9 +151,9 @@ def _emit(o: dict, data: dict, grids: list) -> None:
     elif o["markdown"]:
         typer.echo("\n".join(render.to_markdown(g) for g in grids))
     else:
-        from rich.console import Console
+        from frontdiag.cli._console import make_console
 
-        console = Console()
+        console = make_console()
         for g in grids:
             console.print(render.to_rich(g))
             console.print()

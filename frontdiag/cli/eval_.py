@@ -68,10 +68,11 @@ def register(app: typer.Typer) -> None:
             typer.echo(json.dumps(report.as_dict(), indent=2))
             return 0
         from rich import box
-        from rich.console import Console
         from rich.table import Table
 
-        console = Console()
+        from frontdiag.cli._console import make_console
+
+        console = make_console()
         t = Table(title=f"frontdiag eval — {target}", box=box.SIMPLE_HEAD, pad_edge=False,
                   caption="found: episodes with ≥ 50 % of frames flagged · frames: labelled "
                           "frames · FA: false alarms / healthy frames · each condition on the "

@@ -105,9 +105,9 @@ def register(app: typer.Typer) -> None:
         Example: frontdiag explain results/ --frame 412
         """
         import pandas as pd
-        from rich.console import Console
         from rich.markup import escape
 
+        from frontdiag.cli._console import make_console
         from frontdiag.errors import ConfigError
         from frontdiag.metrics import METRICS
         from frontdiag.verdicts import CHECKS, evaluate
@@ -126,7 +126,7 @@ def register(app: typer.Typer) -> None:
         result = evaluate(table, ruleset)
         pos = _pick_row(result.table, frame, t, topic)
         row = result.table.iloc[pos]
-        con = Console(soft_wrap=True, highlight=False)
+        con = make_console(soft_wrap=True, highlight=False)
         conds = ", ".join(row["conditions"]) or "none"
         con.print(f"[bold]frame {row.get('frame')}[/] {row.get('sensor', '')} "
                   f"{row.get('topic', '')} t={_fmt(row.get('t_rel_s'))} s status "

@@ -29,16 +29,16 @@ def info_cmd(
                                show_default=False),
     as_json: bool = typer.Option(False, "--json", help="Machine-readable output on stdout."),
 ) -> int:
-    from rich.console import Console
     from rich.table import Table
 
+    from frontdiag.cli._console import make_console
     from frontdiag.inspect import inspect_recording
 
     rep = inspect_recording(log)
     if as_json:
         typer.echo(json.dumps(rep.to_dict(), indent=2, default=str))
         return 0
-    con = Console()
+    con = make_console()
     dur = f"{rep.duration_s:.2f} s" if rep.duration_s is not None else "unknown"
     con.print(f"[bold]{rep.path}[/]  [dim]{rep.backend} reader[/]  duration {dur}")
     t = Table(show_edge=False, header_style="bold")

@@ -44,15 +44,15 @@ def register(app: typer.Typer) -> None:
         overrides: Path | None = OVERRIDES_OPT,
     ) -> int:
         """The full text of one rule, its thresholds with units and reasons."""
-        from rich.console import Console
         from rich.markup import escape
 
+        from frontdiag.cli._console import make_console
         from frontdiag.metrics import METRICS
         from frontdiag.verdicts import CHECKS, load_ruleset
         from frontdiag.verdicts.operators import describe
 
         rule = load_ruleset(rules_dir, overrides).get(rule_id.upper())
-        con = Console(soft_wrap=True, highlight=False)
+        con = make_console(soft_wrap=True, highlight=False)
         con.print(f"[bold]{rule.id}[/] {escape(rule.title)}")
         con.print(f"condition {rule.condition} · severity {rule.severity} · {rule.sensor} "
                   f"{'run' if rule.scope == 'run' else 'rows'} · rules/{rule.area}.toml")

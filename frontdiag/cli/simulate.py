@@ -53,13 +53,13 @@ def register(app: typer.Typer) -> None:
 
         Example: frontdiag simulate repetitive_aisle -o aisle.mcap --seconds 20 --seed 3
         """
-        from rich.console import Console
         from rich.table import Table
 
+        from frontdiag.cli._console import make_console
         from frontdiag.sim.lidar import LidarSpec
         from frontdiag.sim.scenarios import SCENARIOS
 
-        console = Console()
+        console = make_console()
         if list_:
             table = Table(title="frontdiag simulate scenarios")
             table.add_column("scenario", style="bold")
@@ -97,7 +97,7 @@ def register(app: typer.Typer) -> None:
 
             with Progress("[progress.description]{task.description}", BarColumn(),
                           "{task.completed}/{task.total} frames", TimeRemainingColumn(),
-                          console=Console(stderr=True), transient=True) as bar:
+                          console=make_console(stderr=True), transient=True) as bar:
                 task = bar.add_task(f"simulating {scenario}", total=None)
 
                 def step(done: int, total: int) -> None:

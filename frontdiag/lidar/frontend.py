@@ -27,7 +27,7 @@ from frontdiag.lidar.backends import make_backend
 from frontdiag.lidar.deskew import deskew, sweep_displacement
 from frontdiag.lidar.localmap import LocalMap
 from frontdiag.lidar.se3 import interpolate_pose, inv, se3_exp, se3_log
-from frontdiag.lidar.spectrum import spectrum
+from frontdiag.lidar.spectrum import full_vector, spectrum, weak_axis
 from frontdiag.records import LidarScan
 from frontdiag.timing import Clock, StageTimer
 
@@ -153,7 +153,8 @@ class LidarFrontend:
         row: dict[str, Any] = {
             "n_points": len(scan.xyz), "n_points_used": 0, "deskew_m": NAN,
             "icp_fitness": NAN, "icp_rmse_m": NAN, "icp_iters": 0, "lidar_eig_min": NAN,
-            "lidar_cond": NAN, "lidar_weak_dir": "", "icp_max_corr_m": NAN,
+            "lidar_cond": NAN, "lidar_weak_dir": "", "lidar_weak_axis": "",
+            "lidar_weak_vec": None, "icp_max_corr_m": NAN,
             "lidar_prior": "none", "status": "ok",
         }
         try:
@@ -298,7 +299,7 @@ def score_alignment(lmap: LocalMap, down: np.ndarray, T: np.ndarray, tau: float,
     taken from them.)
     """
     out: dict[str, Any] = {"icp_rmse_m": NAN, "lidar_eig_min": NAN, "lidar_cond": NAN,
-                           "lidar_weak_dir": ""}
+                           "lidar_weak_dir": "", "lidar_weak_axis": "", "lidar_weak_vec": None}
     if len(down) == 0:
         return out
     R = T[:3, :3]
@@ -315,6 +316,8 @@ def score_alignment(lmap: LocalMap, down: np.ndarray, T: np.ndarray, tau: float,
             out["lidar_eig_min"] = spec.eig_min
             out["lidar_cond"] = spec.cond
             out["lidar_weak_dir"] = spec.weak_dir
+            out["lidar_weak_axis"] = weak_axis(spec.weak_vec, planar)
+            out["lidar_weak_vec"] = [round(float(x), 4) for x in full_vector(spec.weak_vec, planar)]
     return out
 
 

@@ -73,6 +73,29 @@ def _words(part: np.ndarray, axes: tuple[int, ...], rotation: bool) -> str:
     return f"translation along ({comps}), mostly {_TRANS[main]}"
 
 
+AXES = ("roll", "pitch", "yaw", "x", "y", "z")
+"""Categorical names of the six motion axes (sensor frame: x forward, y left, z up), in the
+order of :func:`full_vector`."""
+
+
+def full_vector(vec: np.ndarray, planar: bool = False) -> np.ndarray:
+    """The weak eigenvector as a unit 6-vector (roll, pitch, yaw, x, y, z); a planar (yaw, x, y)
+    vector is padded with zeros."""
+    v = np.asarray(vec, dtype=np.float64)
+    v = v / (np.linalg.norm(v) or 1.0)
+    if planar:
+        return np.array([0.0, 0.0, v[0], v[1], v[2], 0.0])
+    return v
+
+
+def weak_axis(vec: np.ndarray, planar: bool = False) -> str:
+    """The axis carrying the largest share of the weak eigenvector (one of :data:`AXES`).
+
+    Unlike the words of :func:`describe_direction`, which quote the coefficients, this takes
+    one of six values, so it can be counted over a run."""
+    return AXES[int(np.argmax(np.abs(full_vector(vec, planar))))]
+
+
 def describe_direction(vec: np.ndarray, planar: bool = False) -> str:
     """Words for an eigenvector in (rotation, translation) order, e.g.
     "translation along x (forward)" or "yaw (rotation about z) coupled with translation ..."."""

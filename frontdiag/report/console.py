@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import shlex
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import pandas as pd
@@ -18,14 +20,22 @@ _STYLE = {"fail": "bold red", "warn": "yellow", "ok": "green"}
 
 
 def reanalyse_command(recording: str, episode: pd.Series | dict[str, Any],
-                      pad_s: float = 0.5) -> str:
-    """`frontdiag analyze LOG --start A --end B` around one episode (seconds from the start)."""
+                      pad_s: float = 0.5, out_base: Path | str | None = None) -> str:
+    """`frontdiag analyze LOG --start A --end B --out DIR` around one episode (seconds from the
+    start), so that `frontdiag explain DIR` can read the re-analysis afterwards.
+
+    The result goes to ``OUT_BASE/RULE-START`` (OUT_BASE: the run's own --out, else
+    ``frontdiag-episodes``), a directory of its own, so it never replaces the run's result.
+    """
     start = max(float(episode["start_t_rel_s"]) - pad_s, 0.0)
     end = float(episode["end_t_rel_s"]) + pad_s
     topic = episode.get("topic") if hasattr(episode, "get") else None
     flag = "--lidar-topic" if episode.get("sensor") == "lidar" else "--camera-topic"
-    topic_part = f" {flag} {topic}" if topic else ""
-    return f"frontdiag analyze {recording} --start {start:.1f} --end {end:.1f}{topic_part}"
+    topic_part = f" {flag} {shlex.quote(str(topic))}" if topic else ""
+    base = Path(out_base) if out_base is not None else Path("frontdiag-episodes")
+    out = base / f"{episode.get('rule', 'episode')}-{start:.1f}s"
+    return (f"frontdiag analyze {shlex.quote(recording)} --start {start:.1f} --end {end:.1f}"
+            f"{topic_part} --out {shlex.quote(str(out))}")
 
 
 def render_console_summary(console: Console, result: Verdicts, gate_result: GateResult,
@@ -54,9 +64,18 @@ def render_console_summary(console: Console, result: Verdicts, gate_result: Gate
                 console.print(f"       [dim]{escape(reanalyse_cmd(e))}[/]", highlight=False,
                               soft_wrap=True)
     for f in result.run_findings:
-        mark = f"[{_STYLE[f.severity]}]{f.severity}[/]" if f.fired else "[green]ok[/]"
+        if not f.evaluated:
+            mark = "[dim]not evaluated[/]"
+        else:
+            mark = f"[{_STYLE[f.severity]}]{f.severity}[/]" if f.fired else "[green]ok[/]"
         console.print(f"  run {f.rule} {mark}: {escape(f.message)}", highlight=False, soft_wrap=True)
-    if gate_result.passed:
+    if gate_result.incomplete:
+        console.print(f"[bold yellow]gate not passed[/] (exit {gate_result.exit_code}): "
+                      f"{escape(gate_result.incomplete)}", highlight=False, soft_wrap=True)
+        for r in gate_result.reasons:
+            if r != gate_result.incomplete:
+                console.print(f"  - {escape(r)}", highlight=False, soft_wrap=True)
+    elif gate_result.passed:
         console.print(f"[green]gate passed[/] (fail-on {gate_result.fail_on})")
     else:
         console.print(f"[bold red]gate failed[/] (fail-on {gate_result.fail_on}, exit "

@@ -57,7 +57,8 @@ def to_json(result: Verdicts, gate_result: GateResult) -> dict[str, Any]:
         "frames": len(t),
         "verdicts": {k: int(verdicts.get(k, 0)) for k in ("ok", "warn", "fail")},
         "gate": {"exit_code": gate_result.exit_code, "passed": gate_result.passed,
-                 "fail_on": gate_result.fail_on, "reasons": gate_result.reasons},
+                 "fail_on": gate_result.fail_on, "reasons": gate_result.reasons,
+                 "incomplete": gate_result.incomplete},
         "conditions": condition_counts(result),
         "rules": [{"id": r.id, "condition": r.condition, "severity": r.severity,
                    "scope": r.scope, "frames": result.rule_frames(r.id),
@@ -65,6 +66,7 @@ def to_json(result: Verdicts, gate_result: GateResult) -> dict[str, Any]:
                   for r in result.ruleset.rules],
         "episodes": episode_records(result),
         "run_findings": [{"rule": f.rule, "condition": f.condition, "severity": f.severity,
-                          "fired": f.fired, "value": f.value, "message": f.message,
+                          "fired": f.fired, "evaluated": f.evaluated, "value": f.value,
+                          "message": f.message,
                           "frames": f.frames} for f in result.run_findings],
     })

@@ -2,6 +2,13 @@
 
 CI systems (GitLab, Jenkins, GitHub test reporters) render each failing rule with the episodes
 it found; the gate's run-level reasons (max-fraction, baseline, episode limits) form one more case.
+The suite is named after the recording, so reports of several recordings stay apart.
+
+A rule that fired below --fail-on (a warn rule under ``--fail-on fail``) did find something, so
+it is not reported as a passing case: it is *skipped* with a message saying what it found and
+that the gate does not count it (CI reporters list skipped cases with their message; a failure
+would contradict the exit code). A run-level check that could not run (no camera rows, too few
+frames) is skipped as "not evaluated". Only a rule that was evaluated and found nothing passes.
 """
 
 from __future__ import annotations
@@ -21,18 +28,22 @@ def _episode_lines(result: Verdicts, rule_id: str) -> list[str]:
     return [str(s) for s in mine["summary"]]
 
 
-def build_junit(result: Verdicts, gate_result: GateResult) -> ET.ElementTree:
-    suite = ET.Element("testsuite", name="frontdiag")
+def build_junit(result: Verdicts, gate_result: GateResult,
+                suite_name: str = "frontdiag") -> ET.ElementTree:
+    suite = ET.Element("testsuite", name=suite_name)
     failures = 0
+    skipped = 0
     cases = 0
     for rule in result.ruleset.rules:
         cases += 1
         case = ET.SubElement(suite, "testcase", classname=f"frontdiag.{rule.area or 'rules'}",
                              name=f"{rule.id} {rule.condition}: {rule.title}")
+        evaluated = True
         if rule.scope == "run":
             finding = next((f for f in result.run_findings if f.rule == rule.id), None)
             lines = [finding.message] if finding else []
             fired = bool(finding and finding.fired)
+            evaluated = bool(finding and finding.evaluated)
         else:
             lines = _episode_lines(result, rule.id)
             fired = result.rule_frames(rule.id) > 0
@@ -44,7 +55,17 @@ def build_junit(result: Verdicts, gate_result: GateResult) -> ET.ElementTree:
                    "episode(s)" if rule.scope == "frame" else lines[0] if lines else rule.title)
             fail = ET.SubElement(case, "failure", message=msg, type=rule.severity)
             fail.text = f"{text}\n\nfix: {rule.text.fix}\nwrong fix: {rule.text.wrong_fix}"
-        elif fired or lines:
+        elif fired:
+            skipped += 1
+            n = result.rule_frames(rule.id)
+            found = f"on {n} frame(s)" if rule.scope == "frame" else (lines[0] if lines else "")
+            ET.SubElement(case, "skipped", message=f"{rule.condition} [{rule.severity}] fired "
+                          f"{found}; below --fail-on {gate_result.fail_on}, not gated")
+            ET.SubElement(case, "system-out").text = text
+        elif not evaluated:
+            skipped += 1
+            ET.SubElement(case, "skipped", message=f"not evaluated: {text or 'no finding'}")
+        elif lines:
             ET.SubElement(case, "system-out").text = text
     rule_reasons = {f"{rid} " for rid in gate_result.failed_rules}
     other = [r for r in gate_result.reasons
@@ -59,16 +80,19 @@ def build_junit(result: Verdicts, gate_result: GateResult) -> ET.ElementTree:
     suite.set("tests", str(cases))
     suite.set("failures", str(failures))
     suite.set("errors", "0")
-    root = ET.Element("testsuites", tests=str(cases), failures=str(failures), errors="0")
+    suite.set("skipped", str(skipped))
+    root = ET.Element("testsuites", name=suite_name, tests=str(cases), failures=str(failures),
+                      errors="0", skipped=str(skipped))
     root.append(suite)
     return ET.ElementTree(root)
 
 
-def write_junit(path: Path, result: Verdicts, gate_result: GateResult) -> Path:
-    """Write the JUnit XML report to `path`."""
+def write_junit(path: Path, result: Verdicts, gate_result: GateResult,
+                suite: str = "frontdiag") -> Path:
+    """Write the JUnit XML report to `path`; ``suite`` names the test suite (the recording)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tree = build_junit(result, gate_result)
+    tree = build_junit(result, gate_result, suite)
     ET.indent(tree)
     tree.write(path, encoding="utf-8", xml_declaration=True)
     return path

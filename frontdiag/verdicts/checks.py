@@ -47,6 +47,9 @@ class RunOutcome:
     message: str
     frames: list[int] = field(default_factory=list)
     """`frame` numbers of the rows that drive the finding (for the report)."""
+    evaluated: bool = True
+    """False when the check could not run (no rows of its sensor, too few usable frames): such
+    a finding is "not evaluated", never "ok"."""
 
 
 @dataclass(frozen=True)
@@ -570,7 +573,7 @@ def _pose_intensity_corr(df: pd.DataFrame, p: Params) -> RunOutcome:
         dms.append(np.abs(col(g, "d_mean_intensity")))
         frames.append(col(g, "frame"))
     if not incs:
-        return RunOutcome(False, float("nan"), "no camera rows")
+        return RunOutcome(False, float("nan"), "no camera rows", evaluated=False)
     inc, dm, fr = np.concatenate(incs), np.concatenate(dms), np.concatenate(frames)
     ok = ~np.isnan(inc) & ~np.isnan(dm)
     n = int(ok.sum())
@@ -578,7 +581,7 @@ def _pose_intensity_corr(df: pd.DataFrame, p: Params) -> RunOutcome:
     if n < p["min_frames"]:
         return RunOutcome(False, float("nan"),
                           f"only {n} frames with both a pose increment and a mean-intensity "
-                          f"change (needs {p['min_frames']:g})")
+                          f"change (needs {p['min_frames']:g})", evaluated=False)
     if not steps.any():
         return RunOutcome(False, float("nan"),
                           f"no frame with |d_mean_intensity| > {p['dmean_step']:g}: nothing to "

@@ -40,6 +40,8 @@ class RunFinding:
     value: float
     message: str
     frames: list[int] = field(default_factory=list)
+    evaluated: bool = True
+    """False when the check could not run on this table (reported as "not evaluated")."""
 
 
 @dataclass
@@ -189,6 +191,22 @@ def _fmt(v: float) -> str:
     return f"{v:.3g}" if abs(v) < 1000 else f"{v:.0f}"
 
 
+def _weak_direction(table: pd.DataFrame, rows: np.ndarray) -> tuple[str, str]:
+    """The LiDAR's weakest axis over an episode's hit rows (the most common of the categorical
+    ``lidar_weak_axis``) and the most common words for it; empty for camera episodes."""
+    if "lidar_weak_axis" not in table.columns or len(rows) == 0:
+        return "", ""
+    axes = table["lidar_weak_axis"].iloc[rows].astype(str)
+    axes = axes[(axes != "") & (axes != "nan") & (axes != "None")]
+    if axes.empty:
+        return "", ""
+    top = str(axes.value_counts().index[0])
+    words = table["lidar_weak_dir"].iloc[rows].astype(str) if "lidar_weak_dir" in table.columns \
+        else pd.Series(dtype=str)
+    words = words[axes.index.intersection(words.index)][axes == top]
+    return top, str(words.value_counts().index[0]) if not words.empty else top
+
+
 def _episodes(table: pd.DataFrame, rules: tuple[Rule, ...], hits: dict[str, np.ndarray],
               t_rel: np.ndarray, max_gap: int) -> pd.DataFrame:
     records = []
@@ -231,6 +249,10 @@ def _episodes(table: pd.DataFrame, rules: tuple[Rule, ...], hits: dict[str, np.n
                 shown = ", ".join(f"{m} {_PEAK_WORD.get(how, how)} {_fmt(peaks[m])}"
                                   for m, how in peak_spec(worst).items()
                                   if not np.isnan(peaks.get(m, np.nan)))
+                rec["weak_axis"], rec["weak_dir"] = _weak_direction(table, in_ep)
+                if rec["weak_dir"]:
+                    shown = f"weakest direction {rec['weak_dir']}" + (f", {shown}" if shown
+                                                                       else "")
                 rec["summary"] = (f"{cond} [{worst.severity}] {topic} "
                                   f"{rec['start_t_rel_s']:.2f}-{rec['end_t_rel_s']:.2f} s, frames "
                                   f"{rec['start_frame']}-{rec['end_frame']} ({len(in_ep)} hit): "
@@ -239,7 +261,7 @@ def _episodes(table: pd.DataFrame, rules: tuple[Rule, ...], hits: dict[str, np.n
                 records.append(rec)
     base_cols = ["condition", "rule", "rules", "severity", "sensor", "topic", "start_frame",
                  "end_frame", "start_t_ns", "end_t_ns", "start_t_rel_s", "end_t_rel_s",
-                 "duration_s", "n_frames", "n_rows", "summary"]
+                 "duration_s", "n_frames", "n_rows", "weak_axis", "weak_dir", "summary"]
     eps = pd.DataFrame.from_records(records, columns=None if records else base_cols)
     if eps.empty:
         return pd.DataFrame({c: pd.Series(dtype=object) for c in base_cols})
@@ -307,7 +329,8 @@ def evaluate(table: pd.DataFrame, ruleset: Ruleset) -> Verdicts:
         assert chk.run is not None
         outcome: RunOutcome = chk.run(out, rule.param_values())
         findings.append(RunFinding(rule.id, rule.condition, rule.severity, outcome.fired,
-                                   outcome.value, outcome.message, outcome.frames))
+                                   outcome.value, outcome.message, outcome.frames,
+                                   outcome.evaluated))
     episodes = _episodes(out, ruleset.frame_rules, hits, relative_time(out),
                          ruleset.run.episodes.max_gap_frames)
     notes = _unread_notes(out, ruleset.frame_rules)

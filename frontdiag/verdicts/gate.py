@@ -32,6 +32,9 @@ class GateResult:
     fail_on: str = "fail"
     failed_rules: list[str] = field(default_factory=list)
     """Rule IDs whose findings are at or above --fail-on (one JUnit failure each)."""
+    incomplete: str | None = None
+    """Why the run did not reach the end of the recording (interrupted, damaged input): such a
+    run never passes, whatever its verdicts say."""
 
     @property
     def passed(self) -> bool:
