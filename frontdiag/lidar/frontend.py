@@ -34,7 +34,8 @@ from frontdiag.timing import Clock, StageTimer
 NAN = float("nan")
 _log = logging.getLogger(__name__)
 
-EXTRA_COLUMNS: tuple[str, ...] = ("icp_max_corr_m", "ms_lidar_map", "lidar_prior")
+EXTRA_COLUMNS: tuple[str, ...] = ("icp_max_corr_m", "ms_lidar_map", "lidar_prior", "lidar_weak_axis",
+                                  "lidar_weak_vec")
 """Columns this frontend adds beyond ``metrics.LIDAR_COLUMNS`` (declared in metrics.METRICS)."""
 
 
