@@ -1,4 +1,4 @@
-"""`frontdiag explain RESULT_DIR --frame N | --t SECONDS`: one frame against every rule."""
+"""`frontdiag explain RESULT_DIR --frame N | --time SECONDS`: one frame against every rule."""
 
 from __future__ import annotations
 
@@ -8,6 +8,25 @@ from typing import Any
 import typer
 
 from frontdiag.errors import EXIT_OK
+
+STATUS_MEANING = {
+    "ok": "the frontend evaluated this frame",
+    "first_frame": "the first frame: nothing to match it against yet, so most metrics are empty",
+    "first_scan": "the first scan: nothing to register it against yet",
+    "after_gap": "the first row after a gap in the recording: the frontend started afresh",
+    "no_features": "no keypoints were detected, so nothing else could be computed",
+    "too_few_matches": "too few matches with the reference to estimate geometry",
+    "no_intrinsics": "no camera intrinsics, so E, parallax and pose information were skipped",
+    "essential_failed": "the essential-matrix estimate failed on this frame",
+    "too_few_points": "too few points in the scan to register it",
+}
+"""What each frontend status says about a row (the verdict is the rules' finding, separately)."""
+
+
+def status_meaning(status: str) -> str:
+    if status.startswith("error"):
+        return "the frontend raised an error on this row; its metrics are empty"
+    return STATUS_MEANING.get(status, "see the status column in docs")
 
 
 def _load_rules(result_dir: Path, rules_dir: Path | None, overrides: Path | None) -> Any:
@@ -38,6 +57,17 @@ def _load_rules(result_dir: Path, rules_dir: Path | None, overrides: Path | None
     return load_ruleset()
 
 
+def _frame_range(table: Any, topic: str | None) -> str:
+    rows = table if topic is None or "topic" not in table.columns else \
+        table[table["topic"] == topic]
+    parts = []
+    for top, g in rows.groupby("topic", sort=True) if "topic" in rows.columns else [("", rows)]:
+        frames = g["frame"]
+        parts.append(f"{top + ': ' if top else ''}frames {int(frames.min())}-{int(frames.max())} "
+                     f"({len(frames)} rows)")
+    return "; ".join(parts)
+
+
 def _pick_row(table: Any, frame: int | None, t: float | None, topic: str | None) -> int:
     import numpy as np
 
@@ -45,7 +75,8 @@ def _pick_row(table: Any, frame: int | None, t: float | None, topic: str | None)
     from frontdiag.verdicts.engine import relative_time
 
     if (frame is None) == (t is None):
-        raise ConfigError("give exactly one of --frame N or --t SECONDS")
+        raise ConfigError("give exactly one of --frame N or --time SECONDS",
+                          hint=f"this result holds {_frame_range(table, topic)}")
     cand = np.arange(len(table))
     if topic is not None:
         if "topic" not in table.columns or not (table["topic"] == topic).any():
@@ -54,12 +85,13 @@ def _pick_row(table: Any, frame: int | None, t: float | None, topic: str | None)
     if frame is not None:
         cand = cand[(table["frame"].iloc[cand] == frame).to_numpy()]
         if cand.size == 0:
-            raise ConfigError(f"no row with frame {frame}"
-                              + (f" on {topic}" if topic else ""))
+            raise ConfigError(f"no row with frame {frame}" + (f" on {topic}" if topic else ""),
+                              hint=f"this result holds {_frame_range(table, topic)} (frames "
+                              "skipped by --stride or outside --start/--end have no row)")
     else:
         rel = relative_time(table)[cand]
         if np.all(np.isnan(rel)):
-            raise ConfigError("the table has no t_rel_s or t_ns to look up --t")
+            raise ConfigError("the table has no t_rel_s or t_ns to look up --time")
         best = np.nanmin(np.abs(rel - t))
         cand = cand[np.abs(rel - t) == best]
     if cand.size > 1 and "topic" in table.columns:
@@ -71,13 +103,155 @@ def _pick_row(table: Any, frame: int | None, t: float | None, topic: str | None)
 
 
 def _fmt(v: Any) -> str:
+    if isinstance(v, list | tuple):
+        return "(" + ", ".join(_fmt(x) for x in v) + ")"
     try:
         f = float(v)
     except (TypeError, ValueError):
         return str(v)
     if f != f:
         return "n/a"
-    return f"{f:.4g}"
+    text = f"{f:.4g}"
+    return text[1:] if text.startswith("-") and float(text) == 0 else text
+
+
+def _plain(v: Any) -> Any:
+    import numpy as np
+
+    if isinstance(v, np.ndarray | list | tuple):
+        return [float(x) for x in v]
+    if isinstance(v, np.generic):
+        v = v.item()
+    if isinstance(v, float) and v != v:
+        return None
+    return v
+
+
+def _is_recording(path: Path) -> bool:
+    if path.is_dir():
+        return (path / "metadata.yaml").is_file() or any(path.glob("*.bag")) or \
+            any(path.glob("*.db3")) or any(path.glob("*.mcap"))
+    return path.suffix.lower() in (".mcap", ".bag", ".db3")
+
+
+def build_explanation(result_dir: Path, frame: int | None, t: float | None,
+                      topic: str | None, rules_dir: Path | None,
+                      overrides: Path | None) -> dict[str, Any]:
+    """Everything `explain` prints, as plain data (the --json document without its schema)."""
+    import pandas as pd
+
+    from frontdiag.errors import ConfigError
+    from frontdiag.metrics import METRICS
+    from frontdiag.verdicts import CHECKS, evaluate
+    from frontdiag.verdicts.explain import explain_row
+
+    if not result_dir.exists():
+        raise ConfigError(f"{result_dir}: no such file or directory",
+                          hint="pass the --out directory of `frontdiag analyze`")
+    path = result_dir / "frames.parquet" if result_dir.is_dir() else result_dir
+    if not path.is_file() or path.suffix != ".parquet":
+        if _is_recording(result_dir):
+            raise ConfigError(f"{result_dir} is a recording, not a result directory",
+                              hint=f"run `frontdiag analyze {result_dir} --out DIR` first, then "
+                              "`frontdiag explain DIR --frame N`")
+        raise ConfigError(f"{result_dir}: no frames.parquet",
+                          hint="pass the --out directory of `frontdiag analyze`")
+    try:
+        table = pd.read_parquet(path)
+    except Exception as exc:  # pyarrow raises several unrelated types for a bad file
+        raise ConfigError(f"{path}: cannot read the table ({exc})") from None
+    ruleset = _load_rules(result_dir if result_dir.is_dir() else path.parent,
+                          rules_dir, overrides)
+    result = evaluate(table, ruleset)
+    pos = _pick_row(result.table, frame, t, topic)
+    row = result.table.iloc[pos]
+    row_topic = str(row.get("topic", ""))
+    same = result.table[result.table["topic"] == row_topic] if "topic" in result.table.columns \
+        else result.table
+    expl = explain_row(result, pos)
+    expl.sort(key=lambda e: (not e.fired, not e.raw, e.rule.id))
+    thresholds: dict[str, list[str]] = {}
+    rules_out = []
+    for e in expl:
+        r = e.rule
+        clauses = []
+        for c in e.clauses:
+            clauses.append({"metric": c.metric, "value": _plain(c.value), "unit": c.unit,
+                            "test": c.test, "holds": bool(c.holds),
+                            "rules_out": c.rules_out if c.holds else None})
+            thresholds.setdefault(c.metric, []).append(f"{r.id} {c.test}")
+        if r.check:
+            for name, metric in CHECKS[r.check].param_metrics.items():
+                if name in r.params:
+                    thresholds.setdefault(metric, []).append(
+                        f"{r.id} {name}={r.params[name].value}")
+        check = list(e.check_lines)
+        if r.persistence and e.raw and not e.fired:
+            check.append(f"needs {r.persistence.k} of {r.persistence.n} consecutive rows")
+        if r.sensor == "lidar" and str(row.get("lidar_weak_dir", "")) not in ("", "nan", "None"):
+            check.append(f"weakest direction: {row['lidar_weak_dir']} "
+                         f"(axis {row.get('lidar_weak_axis', '')})")
+        rules_out.append({"id": r.id, "condition": r.condition, "severity": r.severity,
+                          "title": r.title,
+                          "state": "fired" if e.fired else
+                          "holds_not_persistent" if e.raw else "clear",
+                          "clauses": clauses, "check": check,
+                          "fix": r.text.fix if e.fired else None})
+    sensor = str(row.get("sensor", "camera"))
+    metrics = []
+    for name, m in METRICS.items():
+        if m.sensor not in ("any", sensor) or name not in result.table.columns:
+            continue
+        if name in ("frame", "sensor", "topic", "status", "conditions", "rules", "verdict",
+                    "t_ns"):
+            continue
+        metrics.append({"name": name, "value": _plain(row[name]), "unit": m.unit,
+                        "thresholds": thresholds.get(name, [])})
+    status = str(row.get("status", ""))
+    return {"result": str(result_dir), "frame": int(row["frame"]), "sensor": sensor,
+            "topic": row_topic, "t_rel_s": _plain(row.get("t_rel_s")), "status": status,
+            "status_meaning": status_meaning(status), "verdict": str(row["verdict"]),
+            "conditions": list(row["conditions"]),
+            "frame_range": {"first": int(same["frame"].min()), "last": int(same["frame"].max())},
+            "rules": rules_out, "metrics": metrics}
+
+
+def render(data: dict[str, Any]) -> None:
+    from rich.markup import escape
+
+    from frontdiag.cli._console import make_console
+
+    con = make_console(soft_wrap=True, highlight=False)
+    conds = ", ".join(data["conditions"]) or "none"
+    t = data["t_rel_s"]
+    con.print(f"[bold]frame {data['frame']}[/] {data['sensor']} {escape(data['topic'])} "
+              f"t={_fmt(t)} s  [dim](frames {data['frame_range']['first']}-"
+              f"{data['frame_range']['last']} on this topic)[/]")
+    con.print(f"  frontend status: [bold]{escape(data['status'])}[/] — "
+              f"{escape(data['status_meaning'])}")
+    fired = [r["id"] for r in data["rules"] if r["state"] == "fired"]
+    found = f"rules fired: {', '.join(fired)}; conditions {conds}" if fired else \
+        "no rule fired on this row"
+    con.print(f"  verdict (what the rules found): [bold]{data['verdict']}[/] — {found}")
+    for r in data["rules"]:
+        state = {"fired": "[bold red]FIRED[/]",
+                 "holds_not_persistent": "[yellow]holds here, not persistent[/]",
+                 "clear": "[green]clear[/]"}[r["state"]]
+        con.print(f"\n[bold]{r['id']}[/] {r['condition']} {escape('[' + r['severity'] + ']')} "
+                  f"{state}: {escape(r['title'])}")
+        for c in r["clauses"]:
+            mark = "✔" if c["holds"] else "✘"
+            out = f"  → rules out {c['rules_out']}" if c["rules_out"] else ""
+            con.print(f"  {mark} {c['metric']} = {_fmt(c['value'])} {c['unit']}; test "
+                      f"{escape(c['test'])}{out}")
+        for line in r["check"]:
+            con.print(f"  · {escape(line)}")
+        if r["fix"]:
+            con.print(f"  [dim]fix: {escape(r['fix'])}[/]")
+    con.print("\n[bold]metrics[/] (value · unit · thresholds that read it)")
+    for m in data["metrics"]:
+        th = "; ".join(m["thresholds"])
+        con.print(f"  {m['name']:<26} {_fmt(m['value']):>10} {m['unit']:<14} [dim]{escape(th)}[/]")
 
 
 def register(app: typer.Typer) -> None:
@@ -86,10 +260,11 @@ def register(app: typer.Typer) -> None:
     @app.command("explain")
     def explain(
         result_dir: Path = typer.Argument(..., metavar="RESULT_DIR",
-                                          help="The --out directory of `frontdiag analyze`."),
+                                          help="The --out directory of `frontdiag analyze` "
+                                          "(not the recording)."),
         frame: int | None = typer.Option(None, "--frame", help="Frame index (the table's "
                                          "`frame` column)."),
-        t: float | None = typer.Option(None, "--t", metavar="SECONDS",
+        t: float | None = typer.Option(None, "--time", "--t", metavar="SECONDS",
                                        help="Seconds from the recording start (nearest row)."),
         topic: str | None = typer.Option(None, "--topic", help="Topic, when several have the "
                                          "row."),
@@ -98,75 +273,23 @@ def register(app: typer.Typer) -> None:
                                               "used, else the shipped rules/)."),
         overrides: Path | None = typer.Option(None, "--overrides", metavar="FILE",
                                               help="Threshold override file."),
+        as_json: bool = typer.Option(False, "--json", help="Machine-readable output on stdout "
+                                     "(schema docs/schemas/explain.json)."),
     ) -> int:
         """Show one frame: every metric against its thresholds, the rules that fired and the
         look-alikes each value rules out.
 
-        Example: frontdiag explain results/ --frame 412
+        Examples:
+
+          frontdiag analyze run.mcap --out results/ && frontdiag explain results/ --frame 412
+
+          frontdiag explain results/ --time 12.5 --topic /lidar/points --json
         """
-        import pandas as pd
-        from rich.markup import escape
+        data = build_explanation(result_dir, frame, t, topic, rules_dir, overrides)
+        if as_json:
+            from frontdiag.json_models import ExplainDoc, emit
 
-        from frontdiag.cli._console import make_console
-        from frontdiag.errors import ConfigError
-        from frontdiag.metrics import METRICS
-        from frontdiag.verdicts import CHECKS, evaluate
-        from frontdiag.verdicts.explain import explain_row
-
-        path = result_dir / "frames.parquet" if result_dir.is_dir() else result_dir
-        if not path.is_file():
-            raise ConfigError(f"{result_dir}: no frames.parquet",
-                              hint="pass the --out directory of `frontdiag analyze`")
-        try:
-            table = pd.read_parquet(path)
-        except Exception as exc:  # pyarrow raises several unrelated types for a bad file
-            raise ConfigError(f"{path}: cannot read the table ({exc})") from None
-        ruleset = _load_rules(result_dir if result_dir.is_dir() else path.parent,
-                              rules_dir, overrides)
-        result = evaluate(table, ruleset)
-        pos = _pick_row(result.table, frame, t, topic)
-        row = result.table.iloc[pos]
-        con = make_console(soft_wrap=True, highlight=False)
-        conds = ", ".join(row["conditions"]) or "none"
-        con.print(f"[bold]frame {row.get('frame')}[/] {row.get('sensor', '')} "
-                  f"{row.get('topic', '')} t={_fmt(row.get('t_rel_s'))} s status "
-                  f"{row.get('status', '')}: verdict [bold]{row['verdict']}[/], conditions {conds}")
-        expl = explain_row(result, pos)
-        expl.sort(key=lambda e: (not e.fired, not e.raw, e.rule.id))
-        thresholds: dict[str, list[str]] = {}
-        for e in expl:
-            r = e.rule
-            state = ("[bold red]FIRED[/]" if e.fired else
-                     "[yellow]holds here, not persistent[/]" if e.raw else "[green]clear[/]")
-            con.print(f"\n[bold]{r.id}[/] {r.condition} {escape(f'[{r.severity}]')} {state}: "
-                      f"{escape(r.title)}")
-            for c in e.clauses:
-                mark = "✔" if c.holds else "✘"
-                out = ""
-                if c.rules_out and c.holds:
-                    out = f"  → rules out {c.rules_out}"
-                con.print(f"  {mark} {c.metric} = {_fmt(c.value)} {c.unit}; test "
-                          f"{escape(c.test)}{out}")
-                thresholds.setdefault(c.metric, []).append(f"{r.id} {c.test}")
-            for line in e.check_lines:
-                con.print(f"  · {escape(line)}")
-            if r.check:
-                for name, metric in CHECKS[r.check].param_metrics.items():
-                    if name in r.params:
-                        thresholds.setdefault(metric, []).append(
-                            f"{r.id} {name}={r.params[name].value}")
-            if r.persistence and e.raw and not e.fired:
-                con.print(f"  · needs {r.persistence.k} of {r.persistence.n} consecutive rows")
-            if e.fired:
-                con.print(f"  [dim]fix: {escape(r.text.fix)}[/]")
-        sensor = str(row.get("sensor", "camera"))
-        con.print("\n[bold]metrics[/] (value · unit · thresholds that read it)")
-        for name, m in METRICS.items():
-            if m.sensor not in ("any", sensor) or name not in result.table.columns:
-                continue
-            if name in ("frame", "sensor", "topic", "status", "conditions", "rules", "verdict",
-                        "t_ns"):
-                continue
-            th = "; ".join(thresholds.get(name, []))
-            con.print(f"  {name:<26} {_fmt(row[name]):>10} {m.unit:<10} [dim]{escape(th)}[/]")
+            typer.echo(emit(ExplainDoc, data))
+            return EXIT_OK
+        render(data)
         return EXIT_OK

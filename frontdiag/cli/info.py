@@ -27,7 +27,8 @@ def register(app: typer.Typer) -> None:
 def info_cmd(
     log: Path = typer.Argument(..., help="Recording: .bag, .db3, .mcap, or a bag folder.",
                                show_default=False),
-    as_json: bool = typer.Option(False, "--json", help="Machine-readable output on stdout."),
+    as_json: bool = typer.Option(False, "--json", help="Machine-readable output on stdout "
+                                 "(schema docs/schemas/info.json)."),
 ) -> int:
     from rich.table import Table
 
@@ -36,7 +37,9 @@ def info_cmd(
 
     rep = inspect_recording(log)
     if as_json:
-        typer.echo(json.dumps(rep.to_dict(), indent=2, default=str))
+        from frontdiag.json_models import InfoDoc, emit
+
+        typer.echo(emit(InfoDoc, json.loads(json.dumps(rep.to_dict(), default=str))))
         return 0
     con = make_console()
     dur = f"{rep.duration_s:.2f} s" if rep.duration_s is not None else "unknown"

@@ -26,7 +26,7 @@ def register(app: typer.Typer) -> None:
     def simulate_cmd(
         scenario: str = typer.Argument(None, help="Scenario name (see --list)."),
         output: Path = typer.Option(None, "-o", "--output", help="Recording to write."),
-        fmt: str = typer.Option("mcap", "--format", "-f",
+        fmt: str = typer.Option("mcap", "--format", "-f", metavar="[mcap|bag|db3|mcap-ros1|ros2-mcap]",
                                 help="Container: mcap (plain MCAP, ROS 2 cdr), bag (ROS 1), db3 "
                                      "(ROS 2 sqlite bag folder); also mcap-ros1, ros2-mcap."),
         seconds: float = typer.Option(None, "--seconds", "-s",
@@ -38,7 +38,7 @@ def register(app: typer.Typer) -> None:
         lidar: str = typer.Option("16x1024", "--lidar",
                                   help="LiDAR BEAMSxCOLUMNS, e.g. 16x1024, 128x1800."),
         no_lidar: bool = typer.Option(False, "--no-lidar", help="Write no LiDAR."),
-        compressed: str = typer.Option(None, "--compressed",
+        compressed: str = typer.Option(None, "--compressed", metavar="[jpeg|png]",
                                        help="Publish CompressedImage: jpeg or png."),
         jpeg_quality: int = typer.Option(90, "--jpeg-quality", help="JPEG quality 1-100."),
         blur_ms: float = typer.Option(0.0, "--blur-ms",
@@ -46,6 +46,8 @@ def register(app: typer.Typer) -> None:
         no_auto_exposure: bool = typer.Option(False, "--no-auto-exposure",
                                               help="Fix the gain (no exposure steps)."),
         list_: bool = typer.Option(False, "--list", help="List the scenarios and exit."),
+        as_json: bool = typer.Option(False, "--json", help="With --list: machine-readable "
+                                     "(schema docs/schemas/simulate-list.json)."),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
         force: bool = typer.Option(False, "--force", help="Replace an existing output."),
     ) -> int:
@@ -60,6 +62,13 @@ def register(app: typer.Typer) -> None:
         from frontdiag.sim.scenarios import SCENARIOS
 
         console = make_console()
+        if list_ and as_json:
+            from frontdiag.json_models import ScenariosDoc, emit
+
+            typer.echo(emit(ScenariosDoc, {"scenarios": [
+                {"name": sc.name, "summary": sc.summary, "labels": sc.shows,
+                 "default_seconds": sc.default_seconds} for sc in SCENARIOS.values()]}))
+            return 0
         if list_:
             table = Table(title="frontdiag simulate scenarios")
             table.add_column("scenario", style="bold")
