@@ -8,6 +8,7 @@
 from __future__ import annotations
 
 import copy
+import difflib
 import logging
 import tomllib
 from collections.abc import Iterable
@@ -62,7 +63,7 @@ class Ruleset:
         for r in self.rules:
             if r.id == rule_id:
                 return r
-        raise ConfigError(f"unknown rule {rule_id!r}",
+        raise ConfigError(f"unknown rule {rule_id!r}{did_you_mean(rule_id, [r.id for r in self.rules])}",
                           hint="`frontdiag rules list` shows the rule IDs")
 
     def to_dict(self) -> dict[str, Any]:
@@ -93,19 +94,26 @@ def _pydantic_line(exc: Exception) -> str:
     return str(exc)
 
 
+def did_you_mean(name: str, known: Iterable[str]) -> str:
+    """`; did you mean 'entropy_norm'?` for a near miss, else an empty string."""
+    close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.6)
+    return f"; did you mean {close[0]!r}?" if close else ""
+
+
 def semantic_problems(rule: Rule) -> list[str]:
     """Problems pydantic cannot see: names checked against the registries and the catalogue."""
     out: list[str] = []
     if rule.condition not in CONDITIONS:
-        out.append(f"unknown condition {rule.condition!r} (known: {', '.join(CONDITIONS)})")
+        out.append(f"unknown condition {rule.condition!r}{did_you_mean(rule.condition, CONDITIONS)}"
+                   f" (known: {', '.join(CONDITIONS)})")
     elif rule.sensor not in CONDITION_SENSORS[rule.condition]:
         out.append(f"condition {rule.condition!r} is shown by "
                    f"{'/'.join(CONDITION_SENSORS[rule.condition])} rows, not {rule.sensor}")
     for c in rule.when:
         m = METRICS.get(c.metric)
         if m is None:
-            out.append(f"unknown metric {c.metric!r} (see the metric catalogue, "
-                       "frontdiag/metrics.py)")
+            out.append(f"unknown metric {c.metric!r}{did_you_mean(c.metric, METRICS)} (see "
+                       "the metric catalogue, docs/derivations.md and frontdiag/metrics.py)")
         elif m.sensor not in ("any", rule.sensor):
             out.append(f"metric {c.metric!r} is a {m.sensor} metric; this rule reads "
                        f"{rule.sensor} rows")
@@ -118,7 +126,8 @@ def semantic_problems(rule: Rule) -> list[str]:
     if rule.check is not None:
         chk = CHECKS.get(rule.check)
         if chk is None:
-            out.append(f"unknown check {rule.check!r} (known: {', '.join(CHECKS)})")
+            out.append(f"unknown check {rule.check!r}{did_you_mean(rule.check, CHECKS)} "
+                       f"(known: {', '.join(CHECKS)})")
         else:
             if chk.scope != rule.scope:
                 out.append(f"check {chk.name!r} is a {chk.scope}-scope check; the rule has "
@@ -311,10 +320,30 @@ def select_rules(rules: list[Rule], select: Iterable[str] | None,
 
 
 def load_ruleset(rules_dir: Path | None = None, overrides: Path | None = None,
-                 select: list[str] | None = None, ignore: list[str] | None = None) -> Ruleset:
-    """Read a rules directory (default: the shipped rules/), apply overrides and selection."""
+                 select: list[str] | None = None, ignore: list[str] | None = None,
+                 extra_dirs: Iterable[Path] = ()) -> Ruleset:
+    """Read a rules directory (default: the shipped rules/), apply overrides and selection.
+
+    ``extra_dirs`` adds the rules of further directories (a team's own, under its own ID
+    namespace) to those of ``rules_dir``; an ID defined twice is a problem. Run-level settings
+    come from ``rules_dir``'s run.toml only (change them with an override file).
+    """
     rules_dir = Path(rules_dir) if rules_dir is not None else default_rules_dir()
     rules, run, problems, files = _read_dir(rules_dir)
+    seen = {r.id: str(rules_dir) for r in rules}
+    for extra in extra_dirs:
+        added, _run, added_problems, added_files = _read_dir(Path(extra))
+        problems += added_problems
+        if (Path(extra) / RUN_FILE).is_file():
+            problems.append(f"{Path(extra) / RUN_FILE}: run-level settings of added rules "
+                            "directories are not read; put them in an --overrides file")
+        for r in added:
+            if r.id in seen:
+                problems.append(f"{extra}: rule {r.id} is already defined in {seen[r.id]}; give "
+                                "your rules their own namespace (e.g. MY-001)")
+            seen[r.id] = str(extra)
+        rules += added
+        files += added_files
     if problems:
         more = f" (and {len(problems) - 1} more; run `frontdiag rules check {rules_dir}`)" \
             if len(problems) > 1 else ""

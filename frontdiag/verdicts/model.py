@@ -60,7 +60,7 @@ class Persistence(_Strict):
 
 
 class RuleText(_Strict):
-    """What a user reads: all fields come from the lesson."""
+    """What a user reads about a rule: symptom, revealing metric, values, look-alike, fixes."""
 
     symptom: str = Field(min_length=1)
     reveals: str = Field(min_length=1)
@@ -72,11 +72,16 @@ class RuleText(_Strict):
     fix: str = Field(min_length=1)
     wrong_fix: str = Field(min_length=1)
     source: str = Field(min_length=1)
-    """Where in the lesson the numbers come from."""
+    """Where the numbers come from: a section of docs/derivations.md, a paper, your notes."""
+
+
+RULE_ID_PATTERN = r"^[A-Z][A-Z0-9]{1,15}(-[A-Z0-9]{1,15})*-\d{3}$"
+"""NAMESPACE(-AREA)-NNN: the shipped rules use FD-XXX-NNN; a team's own rules take their own
+namespace (MY-001, ACME-DOCK-002), so they never collide with a shipped ID."""
 
 
 class Rule(_Strict):
-    id: str = Field(pattern=r"^FD-[A-Z]{3}-\d{3}$")
+    id: str = Field(pattern=RULE_ID_PATTERN)
     title: str = Field(min_length=1)
     condition: str
     severity: Severity
