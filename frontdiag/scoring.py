@@ -72,9 +72,11 @@ class ConditionScore:
     @property
     def f1(self) -> float | None:
         p, r = self.precision, self.recall
-        if p is None or r is None or p + r == 0:
-            return None if p is None or r is None else 0.0
-        return 2 * p * r / (p + r)
+        if r == 0.0:  # nothing labelled was found: F1 is 0 whether or not anything was flagged
+            return 0.0
+        if p is None or r is None:
+            return None
+        return 2 * p * r / (p + r) if p + r else 0.0
 
     @property
     def false_alarm_rate(self) -> float | None:

@@ -1,19 +1,20 @@
-"""`frontdiag eval`: score per-frame verdicts against labelled intervals."""
+"""`frontdiag eval`: score per-frame verdicts against labelled intervals, and gate on accuracy."""
 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import typer
 
-from frontdiag.errors import ConfigError
+from frontdiag.errors import EXIT_GATE, EXIT_OK, ConfigError
 
 _RECORDING_SUFFIXES = (".mcap", ".bag", ".db3")
 
 
 def _is_recording(p: Path) -> bool:
     if p.is_file():
-        return p.suffix in _RECORDING_SUFFIXES
+        return p.suffix.lower() in _RECORDING_SUFFIXES
     return p.is_dir() and (p / "metadata.yaml").is_file()
 
 
@@ -21,6 +22,79 @@ def _fmt(v: float | None, pct: bool = False) -> str:
     if v is None:
         return "—"
     return f"{100 * v:.1f} %" if pct else f"{v:.2f}"
+
+
+def find_labels(target: Path, labels: Path | None) -> tuple[Path, Path | None]:
+    """The labels file to score against, and the recording they belong to (when known).
+
+    An explicit --labels wins. For a recording the default is ``<recording>.labels.csv``; for a
+    result directory the recording is read from its manifest.json (``input.path``)."""
+    from frontdiag.output import read_manifest
+    from frontdiag.sim.run import labels_path_for
+
+    recording: Path | None = target if _is_recording(target) else None
+    if recording is None and target.is_dir():
+        src = (read_manifest(target).get("input") or {}).get("path")
+        recording = Path(src) if src else None
+    if labels is not None:
+        found = labels
+    elif recording is not None:
+        found = labels_path_for(recording)
+    else:
+        raise ConfigError(f"{target}: no --labels given and no recording to find them beside",
+                          hint="pass --labels FILE (the simulator writes <recording>.labels.csv)")
+    if not found.is_file():
+        raise ConfigError(f"labels file not found: {found}",
+                          hint="pass --labels FILE; `frontdiag simulate` writes "
+                          "<recording>.labels.csv beside each recording")
+    return found, recording
+
+
+def accuracy_gate(report: Any, min_recall: float | None, min_precision: float | None,
+                  max_false_alarm: float | None) -> list[str]:
+    """Reasons the scores miss the requested gates (empty: passed). Recall is episode recall
+    per labelled condition, precision frame precision, false alarms the share of healthy frames
+    flagged with anything."""
+    reasons = []
+    for c in report.conditions:
+        if not c.episodes:
+            continue
+        if min_recall is not None and (c.episode_recall or 0.0) < min_recall:
+            reasons.append(f"{c.condition}: episode recall {_fmt(c.episode_recall)} < "
+                           f"--min-recall {min_recall:g}")
+        if min_precision is not None and (c.precision or 0.0) < min_precision:
+            reasons.append(f"{c.condition}: frame precision {_fmt(c.precision)} < "
+                           f"--min-precision {min_precision:g}")
+    rate = report.false_alarm_rate
+    if max_false_alarm is not None and rate is not None and rate > max_false_alarm:
+        reasons.append(f"false alarms on {_fmt(rate, pct=True)} of healthy frames > "
+                       f"--max-false-alarm {max_false_alarm:g}")
+    return reasons
+
+
+def _analyse(recording: Path, quiet: bool) -> Any:
+    from frontdiag.api import AnalysisOptions, run_analysis
+    from frontdiag.cli._console import make_console
+
+    if quiet:
+        return run_analysis(recording, AnalysisOptions())
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+
+    with Progress(TextColumn("[bold]analyze[/] {task.description}"), BarColumn(),
+                  MofNCompleteColumn(), TextColumn("frames"),
+                  console=make_console(stderr=True), transient=True) as bar:
+        task = bar.add_task(recording.name, total=None)
+
+        def progress(done: int, expected: int | None) -> None:
+            bar.update(task, completed=done, total=expected)
+
+        return run_analysis(recording, AnalysisOptions(), progress=progress)
+
+
+def _share(value: float, name: str) -> float:
+    if not 0.0 <= value <= 1.0:
+        raise ConfigError(f"{name} {value:g}: choose a share between 0 and 1")
+    return value
 
 
 def register(app: typer.Typer) -> None:
@@ -31,49 +105,64 @@ def register(app: typer.Typer) -> None:
         target: Path = typer.Argument(..., help="An `analyze --out` directory, a frames "
                                       ".parquet/.csv, or a recording (analysed first)."),
         labels: Path = typer.Option(None, "--labels", "-l",
-                                    help="Labels CSV (default: <recording>.labels.csv)."),
-        json_: bool = typer.Option(False, "--json", help="Machine-readable output on stdout."),
+                                    help="Labels CSV (default: <recording>.labels.csv, the "
+                                    "recording found from the result's manifest)."),
+        min_recall: float = typer.Option(None, "--min-recall", metavar="SHARE",
+                                         help="Exit 1 when a labelled condition's episode "
+                                         "recall is below SHARE."),
+        min_precision: float = typer.Option(None, "--min-precision", metavar="SHARE",
+                                            help="Exit 1 when a labelled condition's frame "
+                                            "precision is below SHARE."),
+        max_false_alarm: float = typer.Option(None, "--max-false-alarm", metavar="SHARE",
+                                              help="Exit 1 when more than SHARE of healthy "
+                                              "frames are flagged."),
+        json_: bool = typer.Option(False, "--json", help="Machine-readable output on stdout "
+                                   "(schema docs/schemas/eval.json)."),
+        quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
     ) -> int:
         """Score verdicts against labels: episode recall, frame precision/F1, false alarms.
 
-        Example: frontdiag eval results/ --labels sample_logs/healthy_loop.mcap.labels.csv
+        Examples:
+
+          frontdiag eval results/                       # labels found via the manifest
+
+          frontdiag eval run.mcap --min-recall 1 --max-false-alarm 0.01   # CI accuracy gate
         """
         import pandas as pd
 
         from frontdiag.scoring import normalise_frames, read_frames, read_labels, score
-        from frontdiag.sim.run import labels_path_for
 
+        for value, name in ((min_recall, "--min-recall"), (min_precision, "--min-precision"),
+                            (max_false_alarm, "--max-false-alarm")):
+            if value is not None:
+                _share(value, name)
         if not target.exists():
             raise ConfigError(f"{target}: not found")
+        labels_file, _ = find_labels(target, labels)
+        label_table = read_labels(labels_file)  # checked before any analysis
         if _is_recording(target):
-            if labels is None:
-                labels = labels_path_for(target)
-            try:
-                from frontdiag.api import analyze
-            except ImportError as exc:
-                raise ConfigError("scoring a recording needs `frontdiag analyze`, which this "
-                                  "installation does not provide",
-                                  hint="run `frontdiag analyze REC --out DIR` and eval DIR") from exc
-            table = analyze(target)
-            frames = normalise_frames(pd.DataFrame(table), source=str(target))
+            result = _analyse(target, quiet or json_)
+            frames = normalise_frames(pd.DataFrame(result.table), source=str(target))
         else:
             frames = read_frames(target)
-        if labels is None:
-            raise ConfigError("missing --labels", hint="the simulator writes <recording>."
-                              "labels.csv beside each recording")
-        report = score(frames, read_labels(labels))
+        report = score(frames, label_table)
+        reasons = accuracy_gate(report, min_recall, min_precision, max_false_alarm)
+        code = EXIT_GATE if reasons else EXIT_OK
         if json_:
-            import json
+            from frontdiag.json_models import EvalDoc, emit
 
-            typer.echo(json.dumps(report.as_dict(), indent=2))
-            return 0
+            typer.echo(emit(EvalDoc, {**report.as_dict(),
+                                      "gate": {"passed": not reasons, "reasons": reasons}}))
+            return code
         from rich import box
+        from rich.markup import escape
         from rich.table import Table
 
         from frontdiag.cli._console import make_console
 
         console = make_console()
-        t = Table(title=f"frontdiag eval — {target}", box=box.SIMPLE_HEAD, pad_edge=False,
+        t = Table(title=f"frontdiag eval — {escape(str(target))} against "
+                  f"{escape(labels_file.name)}", box=box.SIMPLE_HEAD, pad_edge=False,
                   caption="found: episodes with ≥ 50 % of frames flagged · frames: labelled "
                           "frames · FA: false alarms / healthy frames · each condition on the "
                           "rows of its sensor (registration_degeneracy: LiDAR, others: camera)")
@@ -92,4 +181,10 @@ def register(app: typer.Typer) -> None:
         if report.unknown_predicted:
             console.print(f"ignored unknown condition names: "
                           f"{', '.join(report.unknown_predicted)}", highlight=False)
-        return 0
+        if reasons:
+            console.print("[bold red]accuracy gate failed[/]:")
+            for r in reasons:
+                console.print(f"  - {escape(r)}", highlight=False)
+        elif any(v is not None for v in (min_recall, min_precision, max_false_alarm)):
+            console.print("[green]accuracy gate passed[/]")
+        return code
