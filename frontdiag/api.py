@@ -67,6 +67,7 @@ class AnalysisOptions:
     rules: bool = True  # evaluate the failure taxonomy (rules/*.toml) over the table
     rules_dir: str | None = None
     rules_overrides: str | None = None
+    rules_extra: list[str] | None = None  # rules directories added to rules_dir's (--rules DIR)
     select: list[str] | None = None
     ignore: list[str] | None = None
     jobs: int = 1  # processes for one recording (time windows, frontdiag.parallel)
@@ -158,7 +159,8 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
         ruleset = load_ruleset(
             Path(opts.rules_dir) if opts.rules_dir else None,
             Path(opts.rules_overrides) if opts.rules_overrides else None,
-            select=opts.select, ignore=opts.ignore)
+            select=opts.select, ignore=opts.ignore,
+            extra_dirs=[Path(d) for d in opts.rules_extra or ()])
     notes: list[str] = []
     with open_recording(path) as rec:
         topic_infos = rec.topics
@@ -266,8 +268,8 @@ def _manifest(path: Path, rec: Recording, choice: TopicChoice, intr: Intrinsics 
         lid_params = params(opts.lidar_params or LidarParams())
     selection = {k: getattr(opts, k) for k in ("start_s", "end_s", "max_frames", "stride")}
     rules = None if not opts.rules else {
-        "dir": opts.rules_dir, "overrides": opts.rules_overrides, "select": opts.select,
-        "ignore": opts.ignore}
+        "dir": opts.rules_dir, "extra_dirs": opts.rules_extra,
+        "overrides": opts.rules_overrides, "select": opts.select, "ignore": opts.ignore}
     return {
         "frontdiag_version": __version__,
         "versions": versions(),

@@ -103,6 +103,15 @@ def write_manifest(out: Path, manifest: dict[str, Any]) -> Path:
     return path
 
 
+def write_frontend_config(out: Path, manifest: dict[str, Any]) -> Path:
+    """The effective frontend parameters as ``frontend.toml``, which ``--config`` reads back."""
+    from frontdiag.config import dump_toml
+
+    path = out / "frontend.toml"
+    path.write_text(dump_toml(manifest.get("params") or {}))
+    return path
+
+
 def _json_default(obj: Any) -> Any:
     if isinstance(obj, np.generic):
         return obj.item()

@@ -192,15 +192,15 @@ def test_camera_info_yaml(tmp_path: Path, capsys: pytest.CaptureFixture[str]) ->
 
 def test_same_recording_gives_the_same_table(tmp_path: Path) -> None:
     log = write_recording(tmp_path / "det.mcap", "mcap", n=6)
-    a = frontdiag.analyze(log)
-    b = frontdiag.analyze(log)
+    a = frontdiag.analyze(log).to_pandas()
+    b = frontdiag.analyze(log).to_pandas()
     cols = [c for c in a.columns if not c.startswith("ms_")]
     pd.testing.assert_frame_equal(a[cols], b[cols])
 
 
 def test_python_api_returns_a_dataframe_with_manifest(tmp_path: Path) -> None:
     log = write_recording(tmp_path / "api.mcap", "mcap", n=4)
-    df = frontdiag.analyze(log, max_frames=3)
+    df = frontdiag.analyze(log, max_frames=3).to_pandas()
     assert isinstance(df, pd.DataFrame) and len(df) == 3
     assert df.attrs["manifest"]["selection"]["max_frames"] == 3
 
@@ -274,7 +274,7 @@ def test_intrinsics_with_distortion_are_used(tmp_path: Path) -> None:
             w.write("/cam/camera_info", "sensor_msgs/msg/CameraInfo",
                     camera_info_msg(K, 160, 120, t, D=np.array([0.1, -0.05, 0, 0]),
                                     model="equidistant"), t)
-    df = frontdiag.analyze(log)
+    df = frontdiag.analyze(log).to_pandas()
     assert df.attrs["manifest"]["intrinsics"]["model"] == "equidistant"
 
 
@@ -313,7 +313,7 @@ def test_bad_rules_dir_is_exit_2(tmp_path: Path, capsys: pytest.CaptureFixture[s
 
 def test_a_production_budget_shows_ransac_starvation(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """The lesson's experiment (ch7): no ratio test, no mutual check, a 40-iteration budget.
+    """The reference experiment: no ratio test, no mutual check, a 40-iteration budget.
     The inlier ratio halves and the iterations it requires exceed the budget: FD-RAN-001."""
     log = Path(__file__).resolve().parents[1] / "sample_logs" / "healthy_loop.mcap"
     res = {}
@@ -345,7 +345,7 @@ def test_bad_frontend_settings_are_exit_2(tmp_path: Path, capsys: pytest.Capture
 
 def test_a_camera_standing_still_passes_the_gate(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """Identical frames: H/E = 1 at zero parallax, but nothing turned either (lesson ch6: a
+    """Identical frames: H/E = 1 at zero parallax, but nothing turned either (a
     stationary robot inserts no keyframes and stays safe), so no pure_rotation failure."""
     log = write_recording(tmp_path / "still.mcap", "mcap", n=30, shift=0)
     out = tmp_path / "res"

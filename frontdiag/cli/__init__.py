@@ -46,7 +46,7 @@ app = typer.Typer(
     epilog=EPILOG,
     no_args_is_help=True,
     pretty_exceptions_enable=False,
-    add_completion=False,
+    add_completion=True,
     rich_markup_mode="rich",
 )
 
@@ -93,9 +93,19 @@ def _register() -> None:
 _register()
 
 
+def hoist_root_flags(args: list[str]) -> list[str]:
+    """`frontdiag analyze run.mcap --debug` means the same as `frontdiag --debug analyze ...`:
+    move the root's --debug in front of the subcommand (up to a literal `--`)."""
+    end = args.index("--") if "--" in args else len(args)
+    if "--debug" not in args[:end]:
+        return args
+    return ["--debug", *[a for a in args[:end] if a != "--debug"], *args[end:]]
+
+
 def main(argv: list[str] | None = None) -> int:
     """Console entry point; returns the process exit code."""
-    args = sys.argv[1:] if argv is None else argv
+    args = sys.argv[1:] if argv is None else list(argv)
+    args = hoist_root_flags(args)
     debug = "--debug" in args
     err = _err_console()
     try:

@@ -57,7 +57,7 @@ def analyze_cmd(
     out: Path | None = typer.Option(None, "--out", "-o",
                                     help="Result directory: frames.parquet, manifest.json, "
                                          "episodes.parquet (and frames.csv)."),
-    fmt: str = typer.Option("parquet", "--format",
+    fmt: str = typer.Option("parquet", "--format", metavar="[parquet|csv]",
                             help="parquet (always written) or csv (adds frames.csv)."),
     camera_topic: str | None = typer.Option(None, "--camera-topic",
                                             help="Image topic (Image or CompressedImage)."),
@@ -67,7 +67,7 @@ def analyze_cmd(
                                           help="Odometry used as the LiDAR motion prior."),
     no_camera: bool = typer.Option(False, "--no-camera", help="Skip the camera frontend."),
     no_lidar: bool = typer.Option(False, "--no-lidar", help="Skip the LiDAR frontend."),
-    intrinsics: str | None = typer.Option(None, "--intrinsics",
+    intrinsics: str | None = typer.Option(None, "--intrinsics", metavar="FX,FY,CX,CY",
                                           help="fx,fy,cx,cy in pixels (overrides CameraInfo)."),
     camera_info: Path | None = typer.Option(None, "--camera-info",
                                             help="ROS camera_info YAML (overrides CameraInfo)."),
@@ -76,31 +76,41 @@ def analyze_cmd(
     max_frames: int | None = typer.Option(None, "--max-frames",
                                           help="Analyse at most N frames per sensor."),
     stride: int = typer.Option(1, "--stride", help="Analyse every N-th message."),
-    features: int = typer.Option(1000, "--features", help="ORB features per frame."),
-    ratio: float = typer.Option(0.8, "--ratio",
+    config: Path | None = typer.Option(None, "--config", metavar="FILE.toml",
+                                       help="Frontend parameters (\\[camera] and \\[lidar] tables; see "
+                                            "docs/config.md); the options below win over it."),
+    features: int | None = typer.Option(None, "--features",
+                                        help="ORB features per frame (default 1000)."),
+    ratio: float | None = typer.Option(None, "--ratio",
                                 help="Lowe ratio threshold (0-1]; 1.0 keeps every unambiguous "
-                                     "nearest neighbour. Match your frontend's setting."),
+                                     "nearest neighbour. Match your frontend's setting "
+                                     "(default 0.8)."),
     no_mutual: bool = typer.Option(False, "--no-mutual",
                                    help="Skip the mutual-consistency check in matching."),
-    ransac_iters: int = typer.Option(1000, "--ransac-iters",
-                                     help="RANSAC iteration cap for E and H; set your frontend's "
-                                          "budget to see where it starves (FD-RAN-001)."),
-    lidar_backend: str = typer.Option("auto", "--lidar-backend",
+    ransac_iters: int | None = typer.Option(None, "--ransac-iters",
+                                            help="RANSAC iteration cap for E and H; set your "
+                                                 "frontend's budget to see where it starves "
+                                                 "(FD-RAN-001) (default 1000)."),
+    lidar_backend: str | None = typer.Option(None, "--lidar-backend",
+                                             metavar="[auto|small_gicp|open3d]",
                                       help="LiDAR registration: auto (small_gicp), small_gicp, "
-                                           "or open3d (needs frontdiag[open3d])."),
-    rules_dir: Path | None = typer.Option(None, "--rules",
-                                          help="Rules directory instead of the shipped rules/."),
+                                           "or open3d (needs frontdiag\\[open3d]) (default auto)."),
+    rules_dir: Path | None = typer.Option(None, "--rules", metavar="DIR",
+                                          help="Your own rules directory, added to the shipped "
+                                               "rules (IDs in your own namespace, e.g. MY-001)."),
+    no_default_rules: bool = typer.Option(False, "--no-default-rules",
+                                          help="Use only the --rules directory."),
     overrides: Path | None = typer.Option(None, "--overrides",
                                           help="TOML file overriding rule thresholds."),
-    select: list[str] | None = typer.Option(None, "--select",
+    select: list[str] | None = typer.Option(None, "--select", metavar="ID",
                                             help="Only these rule IDs (repeat or comma-separate)."),
-    ignore: list[str] | None = typer.Option(None, "--ignore",
+    ignore: list[str] | None = typer.Option(None, "--ignore", metavar="ID",
                                             help="Skip these rule IDs (repeat or comma-separate)."),
     no_rules: bool = typer.Option(False, "--no-rules", help="Metrics only, no verdicts."),
-    fail_on: str = typer.Option("fail", "--fail-on",
+    fail_on: str = typer.Option("fail", "--fail-on", metavar="[warn|fail|never]",
                                 help="Exit 1 when a rule of this severity fires: warn, fail, never."),
     max_fraction: list[str] | None = typer.Option(
-        None, "--max-fraction", help="Run-level gate on the share of frames, e.g. fail=0.02."),
+        None, "--max-fraction", metavar="SEVERITY=SHARE", help="Run-level gate on the share of frames, e.g. fail=0.02."),
     baseline: Path | None = typer.Option(None, "--baseline",
                                          help="Earlier result dir of the same recording: exit 1 "
                                               "on regressions."),
@@ -123,29 +133,36 @@ def analyze_cmd(
                                     "fleet: re-analyse recordings whose result is current."),
 ) -> int:
     from frontdiag.api import AnalysisOptions
-    from frontdiag.camera.frontend import CameraParams
     from frontdiag.cli._console import make_console
     from frontdiag.errors import EXIT_INTERRUPTED, EXIT_OK, ConfigError
-    from frontdiag.lidar.frontend import LidarParams
     from frontdiag.output import (
         prepare_out_dir,
         refuse_overwrite,
+        write_frontend_config,
         write_manifest,
         write_table,
     )
 
     if fail_on not in ("warn", "fail", "never"):
         raise ConfigError(f"--fail-on {fail_on!r}: choose warn, fail or never")
-    if lidar_backend not in ("auto", "small_gicp", "open3d"):
+    if lidar_backend not in (None, "auto", "small_gicp", "open3d"):
         raise ConfigError(f"--lidar-backend {lidar_backend!r}: choose auto, small_gicp or open3d")
     if fmt not in ("parquet", "csv"):
         raise ConfigError(f"--format {fmt!r}: choose parquet or csv")
-    if features < 50:
+    if features is not None and features < 50:
         raise ConfigError(f"--features {features}: need at least 50")
-    if not 0.0 < ratio <= 1.0:
+    if ratio is not None and not 0.0 < ratio <= 1.0:
         raise ConfigError(f"--ratio {ratio:g}: choose a value in (0, 1]")
-    if ransac_iters < 1:
+    if ransac_iters is not None and ransac_iters < 1:
         raise ConfigError(f"--ransac-iters {ransac_iters}: need at least 1")
+    if no_default_rules and rules_dir is None:
+        raise ConfigError("--no-default-rules needs --rules DIR (the rules to use instead)")
+    from frontdiag.config import load_config
+
+    cfg = load_config(config, {
+        "camera": {"n_features": features, "ratio": ratio,
+                   "mutual": False if no_mutual else None, "ransac_max_iters": ransac_iters},
+        "lidar": {"backend": lidar_backend}})
     if jobs < 1:
         raise ConfigError(f"--jobs {jobs}: need at least 1")
     from frontdiag.cli.fleet_ import is_fleet
@@ -159,10 +176,10 @@ def analyze_cmd(
         camera_topic=camera_topic, lidar_topic=lidar_topic, odom_topic=odom_topic,
         use_camera=not no_camera, use_lidar=not no_lidar, intrinsics=intrinsics,
         camera_info_file=str(camera_info) if camera_info else None, start_s=start, end_s=end,
-        max_frames=max_frames, stride=stride, camera_params=CameraParams(
-            n_features=features, ratio=ratio, mutual=not no_mutual, ransac_max_iters=ransac_iters),
-        lidar_params=LidarParams(backend=lidar_backend),
-        rules=not no_rules, rules_dir=str(rules_dir) if rules_dir else None,
+        max_frames=max_frames, stride=stride, camera_params=cfg.camera_params(),
+        lidar_params=cfg.lidar_params(), rules=not no_rules,
+        rules_dir=str(rules_dir) if rules_dir and no_default_rules else None,
+        rules_extra=[str(rules_dir)] if rules_dir and not no_default_rules else None,
         rules_overrides=str(overrides) if overrides else None, select=_split(select),
         ignore=_split(ignore), jobs=jobs)
     if fleet:
@@ -192,6 +209,7 @@ def analyze_cmd(
     if out_dir is not None:
         written += write_table(out_dir, result.table, csv=(fmt == "csv"))
         written.append(write_manifest(out_dir, result.manifest))
+        written.append(write_frontend_config(out_dir, result.manifest))
         if result.verdicts is not None:
             from frontdiag.report import write_episodes, write_rules_snapshot
 
@@ -203,8 +221,7 @@ def analyze_cmd(
         written.append(write_junit(junit, result.verdicts, gate_result,
                                    suite=_suite_name(log)))
     if as_json:
-        typer.echo(json.dumps(_json_summary(result, gate_result, written), indent=2,
-                              default=str))
+        typer.echo(_json_summary(result, gate_result, written))
     elif not quiet:
         from frontdiag.cli._render import render_analysis
 
@@ -287,12 +304,11 @@ def _run_with_progress(log: Path, opts: Any, err: Any, show: bool) -> Any:
         return run_analysis(log, opts, progress=progress)
 
 
-def _json_summary(result: Any, gate_result: Any, written: list[Path]) -> dict[str, Any]:
+def _json_summary(result: Any, gate_result: Any, written: list[Path]) -> str:
     from frontdiag.cli._render import sensor_summaries
-    from frontdiag.schemas import ANALYZE_SCHEMA
+    from frontdiag.json_models import AnalyzeDoc, emit
 
-    out = {"schema": ANALYZE_SCHEMA, "input": result.manifest["input"],
-           "topics": result.manifest["topics"],
+    out = {"input": result.manifest["input"], "topics": result.manifest["topics"],
            "counts": result.manifest["counts"], "notes": result.notes,
            "fault": None if result.fault is None else str(result.fault),
            "interrupted": bool(result.interrupted),
@@ -302,4 +318,4 @@ def _json_summary(result: Any, gate_result: Any, written: list[Path]) -> dict[st
         from frontdiag.report import to_json
 
         out["verdicts"] = to_json(result.verdicts, gate_result)
-    return out
+    return emit(AnalyzeDoc, json.loads(json.dumps(out, default=str)))
