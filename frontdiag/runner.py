@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import copy
 import logging
+from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
@@ -273,6 +274,20 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
             for k, v in values.items():
                 row[k] = row.get(k, 0.0) + v if k.startswith("ms_") else v
 
+    # Odometry for a sweep's middle is usually logged after the sweep itself, and the prior
+    # never extrapolates: hold decoded scans until odometry covers them (or stops coming).
+    pending: deque[LidarScan] = deque()
+
+    def release(now_ns: int | None) -> None:
+        while pending and lid_stream is not None and lid_front is not None:
+            scan = pending[0]
+            within = now_ns is not None and now_ns - scan.log_ns <= ODOM_WAIT_NS
+            if within and len(pending) <= ODOM_WAIT_SCANS and not lid_front.odometry_covers(
+                    lid_front.sweep_end_ns(scan)):
+                return
+            pending.popleft()
+            rows.append(lid_stream.analyse(scan, lid_front, "lidar", rec_start))
+
     try:
         for raw in rec.messages(read_topics, None, e):
             if raw.topic == choice.odometry and lid_front is not None:
@@ -281,6 +296,7 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
                     lid_front.add_odometry(header_stamp_ns(msg), odometry_pose(msg))
                 except Exception as exc:
                     log.debug("odometry message skipped: %s", exc)
+                release(raw.log_ns)
                 continue
             if raw.topic == choice.camera and cam_stream and cam_front and conv:
                 if cam_stream.full and (lid_stream is None or lid_stream.full):
@@ -319,11 +335,17 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
                     break
                 if not lid_stream.admit(raw.log_ns):
                     continue
+                if opts.max_frames and lid_stream.stats.analysed + len(pending) >= opts.max_frames:
+                    continue
                 scan = decode_lidar(rec, raw, lid_stream)
                 if scan is None:
                     check_all_failed(lid_stream)
                     continue
-                rows.append(lid_stream.analyse(scan, lid_front, "lidar", rec_start))
+                if choice.odometry:
+                    pending.append(scan)
+                    release(raw.log_ns)
+                else:
+                    rows.append(lid_stream.analyse(scan, lid_front, "lidar", rec_start))
             else:
                 continue
             done += 1
@@ -333,12 +355,21 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
         out.interrupted = True
     except FrontdiagError as exc:
         out.fault = exc
+    if not out.interrupted:
+        release(None)  # the scans still waiting for odometry that will not come
     if cam_front is not None and cam_stream is not None:
         if want_end_state and out.end_state is None:
             out.end_state = camera_state(cam_front, cam_stream)
         cam_front.finish()  # the end of the frames read closes the open interval
         complete()
     return out
+
+
+ODOM_WAIT_NS = 1_000_000_000
+"""How long (log time) a scan waits for odometry covering it before it is registered with the
+constant-velocity prior instead."""
+ODOM_WAIT_SCANS = 20
+"""At most this many scans wait (memory stays bounded when odometry stops)."""
 
 
 def check_all_failed(stream: SensorStream) -> None:

@@ -45,7 +45,7 @@ class LidarParams:
 
     voxel_size_m: float = 0.5
     """Voxel grid for the scan and the map (3D). 0.5 m keeps ~10-20k points of a warehouse scan,
-    the size the lesson's 100 ms budget assumes (0.4 m -> ~15,000)."""
+    the size the reference 100 ms budget assumes (0.4 m -> ~15,000)."""
     planar_voxel_size_m: float = 0.05
     """Voxel grid for 2D scans (LaserScan), whose points are ~1-5 cm apart at short range."""
     min_range_m: float = 0.3
@@ -108,6 +108,20 @@ class LidarFrontend:
             return
         self._odom_t.append(int(t_ns))
         self._odom_T.append(T)
+
+    def odometry_covers(self, t_ns: int) -> bool:
+        """True when odometry up to ``t_ns`` has been added (the prior interpolates, it never
+        extrapolates)."""
+        return bool(self._odom_t) and self._odom_t[-1] >= t_ns
+
+    @staticmethod
+    def sweep_end_ns(scan: LidarScan) -> int:
+        """The latest point time of a sweep: odometry up to here lets the prior cover the
+        mid-sweep pose whatever points the range filter keeps."""
+        times = scan.time_rel_s
+        if times is None or not len(times):
+            return scan.t_ns
+        return scan.t_ns + round(max(float(np.nanmax(times)), 0.0) * 1e9)
 
     @property
     def pose(self) -> np.ndarray | None:
