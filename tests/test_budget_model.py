@@ -1,4 +1,4 @@
-"""The derived budget lands on the lesson's chapter 0 table and chapter 5 LiDAR numbers."""
+"""The derived budget lands on the reference docs/derivations.md §1 table and docs/derivations.md §6 LiDAR numbers."""
 
 from __future__ import annotations
 
@@ -21,12 +21,12 @@ def orin():
     return load_target("orin-nano")
 
 
-def test_chapter0_table(orin) -> None:
+def test_published_stage_table(orin) -> None:
     cam = budget(Workload(), orin).camera
-    lesson = {"pyramid": 2.0, "fast": 8.6, "describe": 1.8, "match": 2.6, "pnp": 0.9}
-    for key, ms in lesson.items():
+    published = {"pyramid": 2.0, "fast": 8.6, "describe": 1.8, "match": 2.6, "pnp": 0.9}
+    for key, ms in published.items():
         assert cam.stage(key).ms == pytest.approx(ms, abs=0.05), key
-    # chapter 3's model, not chapter 0's rounded 2.2 ms
+    # the published model, not the published rounded 2.2 ms
     assert cam.stage("ransac").ms == pytest.approx(2.6, abs=0.05)
     assert cam.period_ms == pytest.approx(33.33, abs=0.01)
     assert 17.5 < cam.total_ms < 19.0
@@ -47,7 +47,7 @@ def test_report_derives_and_footnotes(orin) -> None:
 
 
 @pytest.mark.parametrize(("icp", "ms"), [("point-to-point", 192.0), ("point-to-plane", 48.0)])
-def test_chapter5_lidar(orin, icp: str, ms: float) -> None:
+def test_published_lidar_budget(orin, icp: str, ms: float) -> None:
     lidar = budget(Workload(lidar_beams=128, lidar_columns=1800, lidar_rate_hz=10, icp=icp),
                    orin).lidar
     assert lidar is not None
@@ -94,7 +94,7 @@ def test_invalid_workload() -> None:
 
 def test_orin_target_has_a_source_for_every_coefficient(orin) -> None:
     assert "orin-nano" in available_targets()
-    assert orin.provenance == "lesson"
+    assert orin.provenance == "published"
     for c in orin.coefficients.values():
         assert c.value > 0 and c.source and c.how in ("given", "derived")
     assert orin.coefficients["fast_ns_per_px"].how == "given"

@@ -20,7 +20,7 @@ DESCRIPTOR_BYTES: dict[str, int] = {
 def pyramid_factor(levels: int, scale: float) -> float:
     """Total pyramid area over the base image area: 1 + a + ... + a^(levels-1), a = 1/scale².
 
-    8 levels at scale 1.2 give 3.096 (the lesson rounds it to 3.10).
+    8 levels at scale 1.2 give 3.096 (the reference figures rounds it to 3.10).
     """
     if levels < 1 or scale <= 1.0:
         raise ValueError("a pyramid needs at least one level and a scale factor above 1")

@@ -304,9 +304,42 @@ def measured_report(result_dir: Path, workload: model.Workload, target: Target,
                 f"{s.period_ms:.1f} ms period. A missed deadline drops a frame, doubles the "
                 "baseline and quadruples the guided-matching candidates, so the next frame is "
                 f"slower too: misses come in runs (longest here: {s.longest_miss_run}).")
-    method = f"{METHOD} Matching projected as {matching} (--matching to change)."
+    method = METHOD
+    if any(s.sensor == "camera" for s in sensors):
+        method += f" Matching projected as {matching} (--matching to change)."
+    notes += disagreement_notes(sensors, target, machine)
     return MeasuredReport(str(result_dir), target.name, machine.name, machine_note, method,
                           tuple(sensors), tuple(notes))
+
+
+DISAGREE = 5.0
+"""Stage ratios spreading wider than this factor within one sensor (real CPUs of one class
+differ per operation by 2-3x) mean the target's
+coefficients and this machine's do not describe the same kind of work."""
+
+
+def disagreement_notes(sensors: list[SensorMeasured], target: Target, machine: Target
+                       ) -> list[str]:
+    """Say when the projection's inputs disagree, instead of presenting it as sound."""
+    from frontdiag.budget.targets import PROVENANCE_WORDS
+
+    out = []
+    for s in sensors:
+        ratios = [st.ratio for st in s.stages if st.ratio > 0]
+        if len(ratios) >= 2 and max(ratios) / min(ratios) > DISAGREE:
+            out.append(f"UNRELIABLE ({s.sensor}): the per-stage ratios range from ×{min(ratios):.2f} "
+                       f"to ×{max(ratios):.2f}, a factor {max(ratios) / min(ratios):.0f}; one "
+                       "computer does not differ from another this unevenly, so the target's "
+                       "coefficients and this machine's calibration disagree. Read the numbers "
+                       "as a rough order, not a prediction.")
+        if s.frame.ratio < 1.0:
+            out.append(f"The projection makes {target.name} {1 / s.frame.ratio:.1f}× faster than "
+                       f"this machine on {s.sensor} frames. {target.name}'s coefficients are "
+                       f"{PROVENANCE_WORDS.get(target.provenance, target.provenance)}; this "
+                       f"machine's are {PROVENANCE_WORDS.get(machine.provenance, machine.provenance)}"
+                       " (a loaded or virtual machine calibrates slow). Check both before "
+                       "trusting the projection.")
+    return out
 
 
 def check_gates(report: MeasuredReport, max_util: float | None,

@@ -1,5 +1,5 @@
 """The latency budget, derived stage by stage from the work each stage does and a target's
-per-unit coefficients (the lesson's chapter 0, worked example 2, and chapter 5 for LiDAR).
+per-unit coefficients (published per-stage figures for a Jetson Orin Nano core, camera and LiDAR).
 
 Pure functions: a :class:`Workload` and a :class:`~frontdiag.budget.targets.Target` in, a frozen
 :class:`BudgetReport` out. Nothing here prints.
@@ -18,12 +18,12 @@ from frontdiag.errors import ConfigError
 
 MATCHING = ("guided", "brute")
 SOLVERS = {"5pt": 5, "8pt": 8}  # minimal sample size of each epipolar solver
-ICP = {"point-to-point": 40, "point-to-plane": 8}  # chapter 5: 30-50 vs 5-10 iterations
+ICP = {"point-to-point": 40, "point-to-plane": 8}  # 30-50 vs 5-10 iterations
 
 
 @dataclass(frozen=True)
 class Workload:
-    """What the frontend does per frame. Defaults are the lesson's warehouse AMR."""
+    """What the frontend does per frame. Defaults are the reference warehouse AMR."""
 
     width: int = 1280
     height: int = 720
@@ -39,14 +39,14 @@ class Workload:
     solver: str = "5pt"
     pnp_points: int = 200
     pnp_iters: int = 4
-    # LiDAR: absent unless beams are given (e.g. 128 x 1800 at 10 Hz in chapter 5)
+    # LiDAR: absent unless beams are given (e.g. 128 x 1800 at 10 Hz)
     lidar_beams: int | None = None
     lidar_columns: int = 1800
     lidar_rate_hz: float = 10.0
     icp: str = "point-to-plane"
     icp_iters: int | None = None  # None: the method's typical count (ICP dict)
-    lidar_kept_points: int = 15000  # after a 0.4 m voxel grid in a warehouse (chapter 5)
-    lidar_map_points: int = 20000  # local map the KD-tree is built on (chapter 5)
+    lidar_kept_points: int = 15000  # after a 0.4 m voxel grid in a warehouse (docs/derivations.md §6)
+    lidar_map_points: int = 20000  # local map the KD-tree is built on (docs/derivations.md §6)
 
     def validate(self) -> Workload:
         checks = [
@@ -315,18 +315,25 @@ def derived_numbers(w: Workload) -> dict[str, float]:
 def _footnotes(w: Workload, t: Target, *sensors: SensorBudget) -> tuple[str, ...]:
     camera = sensors[0]
     notes = []
-    if t.provenance == "lesson":
+    if t.provenance == "published":
         ransac = camera.stage("ransac").ms
         notes.append(
-            f"RANSAC is chapter 3's cost model N × (T_solve + M × T_residual) = {ransac:.1f} ms; "
-            "chapter 0's table rounds this stage to 2.2 ms (219 iterations), so the lesson's "
+            f"RANSAC is the published cost model N × (T_solve + M × T_residual) = {ransac:.1f} ms; "
+            "the published table rounds this stage to 2.2 ms (219 iterations), so the reference "
             "18.1 ms total sits about 0.4 ms below this one.")
         if w.matching == "guided":
             notes.append(
-                "Guided matching uses chapter 2's 2.13 candidates in a 25 px window where "
-                "chapter 0's table says ~12; the comparisons cost microseconds, the per-query "
+                "Guided matching uses the published 2.13 candidates in a 25 px window where "
+                "the published table says ~12; the comparisons cost microseconds, the per-query "
                 "overhead dominates the stage.")
     used = {c for s in sensors for st in s.stages for c in st.coefficients}
+    from frontdiag.budget.targets import HOW_WORDS, PROVENANCE_WORDS
+
+    listed = ", ".join(f"{c.name} {c.value:g} {c.unit} ({c.how})"
+                       for c in t.coefficients.values() if c.name in used)
+    notes.insert(0, f"Coefficients of {t.name}: "
+                 f"{PROVENANCE_WORDS.get(t.provenance, t.provenance)}; " + listed + ". "
+                 + "; ".join(f"{k}: {v}" for k, v in HOW_WORDS.items()) + ".")
     derived = [c.name for c in t.coefficients.values() if c.how == "derived" and c.name in used]
     if derived:
         notes.append("Coefficients derived from a stage time and its work (not given per unit "

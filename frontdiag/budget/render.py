@@ -190,14 +190,16 @@ def measured_grids(report: MeasuredReport) -> list[Grid]:
         pad = ("",) * (len(headers) - 3)
         rows += [
             ("Period (ms)", "", _ms(s.period_ms), *pad),
-            ("Utilisation at p50 (%)", "", _pct(s.utilisation_p50), *pad),
+            ("Utilisation at p50 (%)", "", _pct(s.frame.here.p50 / s.period_ms), "",
+             _pct(s.utilisation_p50), "", "", ""),
             ("Frames over the period, here", "", str(s.misses_here), *pad),
             ("Frames over the period, on target", "", str(s.misses_target), *pad),
             ("Miss rate on target (%)", "", _pct(s.miss_rate), *pad),
             ("Longest run of consecutive misses", "", str(s.longest_miss_run), *pad),
         ]
         status = ", ".join(f"{k} {v}" for k, v in sorted(s.statuses.items()))
-        title = (f"ESTIMATE — {s.sensor} timings recorded here ({report.result_dir}, "
+        unsound = any(n.startswith(f"UNRELIABLE ({s.sensor})") for n in report.notes)
+        title = (f"{'UNRELIABLE ESTIMATE' if unsound else 'ESTIMATE'} — {s.sensor} timings recorded here ({report.result_dir}, "
                  f"{s.frames} frames{': ' + status if status else ''}), projected onto "
                  f"{report.target}; period {s.period_source}")
         grids.append(Grid(title, headers, tuple(rows), sections=(n_stages - 2, n_stages - 1)))

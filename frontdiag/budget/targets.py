@@ -5,7 +5,7 @@ A target file is TOML (see ``rules/targets/orin-nano.toml``)::
     [target]
     name = "orin-nano"
     description = "..."
-    provenance = "lesson"          # lesson | calibrated
+    provenance = "published"       # published | calibrated
 
     [coefficients.fast_ns_per_px]
     value = 3.0
@@ -58,11 +58,25 @@ class Coefficient:
         return COEFFICIENTS[self.name][0]
 
 
+PROVENANCE_ALIASES = {"lesson": "published"}
+"""Older target files name published figures "lesson"."""
+
+PROVENANCE_WORDS = {
+    "published": "published per-unit figures for that hardware, not measured by frontdiag",
+    "calibrated": "measured on that machine by `frontdiag budget --calibrate`",
+}
+HOW_WORDS = {
+    "given": "stated per unit by the source",
+    "derived": "a stated stage time divided by the work it was stated for",
+    "measured": "timed on the machine",
+}
+
+
 @dataclass(frozen=True)
 class Target:
     name: str
     description: str
-    provenance: str  # lesson | calibrated
+    provenance: str  # published (stated figures, not measured here) | calibrated
     coefficients: dict[str, Coefficient]
     path: Path | None = None
     machine: dict[str, str] = field(default_factory=dict)
@@ -150,7 +164,8 @@ def parse_target(data: dict, path: Path | None = None) -> Target:
     return Target(
         name=head["name"],
         description=str(head.get("description", "")),
-        provenance=str(head.get("provenance", "")),
+        provenance=PROVENANCE_ALIASES.get(str(head.get("provenance", "")),
+                                          str(head.get("provenance", ""))),
         coefficients=coeffs,
         path=path,
         machine={str(k): str(v) for k, v in machine.items()} if isinstance(machine, dict) else {},
