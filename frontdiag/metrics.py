@@ -11,11 +11,11 @@ from typing import Literal
 
 import numpy as np
 
-# The lesson's feature-count figures (1000 healthy, ~120 failed) are for 1280x720 with a
+# The reference feature-count figures (1000 healthy, ~120 failed) are for 1280x720 with a
 # 1000-feature budget. The corners a scene offers scale with the pixel area, so below that size
 # the budget a frame can be expected to fill is prorated by area.
 REFERENCE_AREA_PX = 1280 * 720
-DEFAULT_FEATURE_BUDGET = 1000  # the lesson's ORB budget (CameraParams.n_features)
+DEFAULT_FEATURE_BUDGET = 1000  # the reference ORB budget (CameraParams.n_features)
 
 
 def keypoint_fill(n_keypoints: np.ndarray | float, width: np.ndarray | float,

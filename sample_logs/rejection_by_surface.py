@@ -10,7 +10,7 @@ frame, and prints, per surface kind (crate faces, labels, uprights, blank paint)
 the features and its rejection rate. Two columns say why queries were rejected:
 
 - ``ambiguous``: the best candidate is as close as this frame's median accepted match, and a
-  second one is as good, the "two equally good candidates" of the lesson's chapter 2;
+  second one is as good, the "two equally good candidates" of the matching table;
 - ``same corner``: the second candidate is the same corner found at another pyramid level
   (inside the first candidate's patch), not a different object.
 

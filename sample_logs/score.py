@@ -7,7 +7,7 @@
 
 Prints, per condition over all recordings: episodes found, frame precision/recall/F1 and false
 alarms on healthy frames (the `frontdiag eval` numbers, summed); then the median [p10, p90] of
-the key metrics per constructed label, so a scene can be checked against the lesson's numbers
+the key metrics per constructed label, so a scene can be checked against the reference numbers
 independently of any rule.
 """
 

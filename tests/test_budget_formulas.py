@@ -1,4 +1,4 @@
-"""The numbers drill of the lesson (chapter 8 §7) as oracles for the budget's closed forms."""
+"""The numbers drill of the reference figures (docs/derivations.md) as oracles for the budget's closed forms."""
 
 from __future__ import annotations
 
@@ -43,14 +43,14 @@ def test_failed_frames_per_minute() -> None:
     (0.4, 5, 0.99, 448),
     (0.7, 5, 0.99, 26),
     (0.5, 8, 0.99, 1177),
-    (0.6, 3, 0.99, 19),     # P3P in chapter 6
+    (0.6, 3, 0.99, 19),     # P3P in docs/derivations.md §4
 ])
 def test_ransac_iterations(w: float, s: int, p: float, n: int) -> None:
     assert f.ransac_iterations(w, s, p) == n
 
 
 def test_ransac_cost_model() -> None:
-    # chapter 3: 218 × (10 µs + 400 × 5 ns) = 2.6 ms
+    # 218 × (10 µs + 400 × 5 ns) = 2.6 ms
     assert f.ransac_ms(218, 10.0, 400, 5.0) == pytest.approx(2.616)
 
 

@@ -124,7 +124,7 @@ def test_repeated_texture_raises_the_ratio_reject_rate() -> None:
     shift = np.array([[1, 0, 3], [0, 1, 2]], np.float32)
     rr_tiled = run([tiled, cv2.warpAffine(tiled, shift, (640, 480))])[1]["ratio_reject_rate"]
     rr_unique = run([unique, cv2.warpAffine(unique, shift, (640, 480))])[1]["ratio_reject_rate"]
-    assert rr_tiled > 0.7 > rr_unique + 0.2  # chapter 2: ~85% on repetitive structure
+    assert rr_tiled > 0.7 > rr_unique + 0.2  # ~85% on repetitive structure
 
 
 def test_exposure_step_shows_in_gain_and_residual() -> None:

@@ -1,4 +1,4 @@
-"""Two-view geometry on rendered scenes with known motion (lesson, chapters 3 and 6)."""
+"""Two-view geometry on rendered scenes with known motion (docs/derivations.md §4)."""
 
 from __future__ import annotations
 
@@ -81,7 +81,7 @@ def test_planar_scene_is_flagged_by_h_over_e(C) -> None:
     row = pair_row("wall", S.rot((0, 1, 0), 1.0), np.asarray(C, float))
     assert row["h_over_e"] > 0.9
     # E is not identifiable on a plane (its rotation can be off), but the translation still
-    # leaves parallax well above the pure-rotation level: the quadrant of chapter 6
+    # leaves parallax well above the pure-rotation level: the quadrant
     assert row["parallax_med_deg"] > 0.3
 
 

@@ -77,7 +77,7 @@ def test_tum_sequence_runs_and_tracks_brightness() -> None:
 @pytest.mark.skipif(not TUM.is_dir(), reason="../shared/data/tum_fr3_long_office_17f absent")
 def test_tum_at_one_hertz_is_not_read_as_repetitive_structure() -> None:
     # The 17 frames are ~1 s apart (timestamps in the file names): an office seen from 4-12 deg
-    # apart rejects 70-85% of ratio tests from viewpoint change alone, which the chapter 2 table
+    # apart rejects 70-85% of ratio tests from viewpoint change alone, which the three-way matching table (docs/derivations.md §3)
     # must not read as repetition.
     import pandas as pd
 

@@ -1,4 +1,4 @@
-"""The lesson's worked numbers as oracles: spatial entropy (ch. 1), RANSAC iterations and
+"""The reference worked numbers as oracles: spatial entropy (ch. 1), RANSAC iterations and
 noise-derived thresholds (ch. 3), and the pyramid's feature budget (ch. 1)."""
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ from frontdiag.camera.geometry import (
     (np.r_[np.full(8, 125.0), np.zeros(40)], 0.537),
     (np.r_[np.full(4, 250.0), np.zeros(44)], 0.358),
 ])
-def test_entropy_table_of_chapter_1(counts: np.ndarray, expected: float) -> None:
+def test_entropy_worked_values(counts: np.ndarray, expected: float) -> None:
     assert entropy_from_counts(counts) == pytest.approx(expected, abs=5e-4)
 
 
@@ -65,7 +65,7 @@ TABLE = {
 
 
 @pytest.mark.parametrize("s", sorted(TABLE))
-def test_ransac_table_of_chapter_3(s: int) -> None:
+def test_ransac_iteration_table(s: int) -> None:
     got = [ransac_iters_required(w / 10, s, 0.99) for w in range(2, 9)]
     assert got == TABLE[s]
 

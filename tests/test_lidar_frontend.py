@@ -77,7 +77,7 @@ def test_hall_is_tracked_and_healthy() -> None:
 def test_corridor_is_flagged_and_its_axis_named() -> None:
     rows, _ = run("corridor")
     for row in rows[2:]:
-        # the lesson's signature: an excellent fit ...
+        # the reference signature: an excellent fit ...
         assert row["icp_fitness"] > 0.8
         assert row["icp_rmse_m"] < 0.05
         # ... and no information along the corridor
@@ -94,7 +94,7 @@ def test_spectrum_separates_corridor_from_hall_by_two_orders_of_magnitude() -> N
     assert h / c > 100
 
 
-def test_deskew_displacement_of_the_lessons_example() -> None:
+def test_deskew_displacement_of_the_worked_example() -> None:
     # 1.5 m/s straight ahead over a 100 ms sweep: the first and last points are 15 cm apart
     pts = np.random.default_rng(0).uniform(-10, 10, size=(500, 3))
     assert sweep_displacement(pts, 0.1, np.array([0, 0, 0, 1.5, 0, 0])) == pytest.approx(0.15)

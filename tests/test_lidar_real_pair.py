@@ -54,6 +54,6 @@ def test_recovers_the_reference_transform(backend: str) -> None:
     assert np.linalg.norm(err[:3, 3]) < 0.05
     assert rotation_angle_deg(err) < 0.75
     assert rows[1]["icp_fitness"] > 0.9
-    # an outdoor scene with structure in every direction: healthy on the lesson's scale
+    # an outdoor scene with structure in every direction: healthy on the reference scale
     assert rows[1]["lidar_cond"] < 900
     assert rows[1]["lidar_eig_min"] > 100

@@ -1,4 +1,4 @@
-"""The lesson's registration worked examples, as oracles for the reference implementations."""
+"""The reference registration worked examples, as oracles for the reference implementations."""
 
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ Q = P @ R_TRUE.T + np.array([2.0, -1.0])
 
 
 def test_three_point_closed_form_by_the_2d_shortcut() -> None:
-    # The lesson lists the third target point as (1.0, 1.4) and the target centroid as
+    # The reference figures lists the third target point as (1.0, 1.4) and the target centroid as
     # (2.2, 0.2); R (1, 3) + t is (1.0, 2.0) and the centroid (2.2, 0.4). Its centred b_i, its
     # sums 4.8 and 6.4 and its t = (2, -1) all follow from the corrected values.
     np.testing.assert_allclose(Q, [[2.0, -1.0], [3.6, 0.2], [1.0, 2.0]], atol=1e-12)

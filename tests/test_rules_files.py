@@ -43,7 +43,7 @@ broken = "b"
 distinguish = "d"
 fix = "f"
 wrong_fix = "w"
-source = "lesson"
+source = "our notes"
 '''
 
 

@@ -77,7 +77,7 @@ def test_persistence_shorter_group_than_window() -> None:
     assert persist(np.array([1, 1], dtype=bool), 2, 5).tolist() == [True, True]
 
 
-# --- named checks on the lesson's rows ----------------------------------------------------------
+# --- named checks on the reference rows ----------------------------------------------------------
 
 def test_healthy_table_has_no_findings(ruleset) -> None:
     res = evaluate(frames(60), ruleset)
@@ -85,7 +85,7 @@ def test_healthy_table_has_no_findings(ruleset) -> None:
     assert res.episodes.empty
 
 
-def test_chapter2_table_repetitive_vs_detection_vs_exposure(ruleset) -> None:
+def test_matching_table_repetitive_vs_detection_vs_exposure(ruleset) -> None:
     t = frames(60, {
         range(5, 15): {"n_keypoints": 1000, "ratio_reject_rate": 0.85},      # repetitive aisle
         range(25, 35): {"n_keypoints": 120, "ratio_reject_rate": 0.30},      # dark / blank
@@ -171,7 +171,7 @@ def test_a_scene_cut_is_not_an_exposure_step(ruleset) -> None:
 def test_a_step_where_the_scene_already_rejects_much(ruleset, res_aff, expected) -> None:
     # Approaching a bright doorway the base rejection is ~57%; a gain step adds its ~15-25
     # points on top and crosses the 70% line. Whether the affine brightness model removes the
-    # residual (ch4's distinguishing value) tells the step from a scene cut.
+    # residual (distinguishing value) tells the step from a scene cut.
     base = {range(30): {"ratio_reject_rate": 0.57}}
     base[10] = {"d_mean_intensity": -16.9, "photo_residual_med": 16.0, "ratio_reject_rate": 0.73,
                 "photo_residual_affine_med": res_aff, "affine_gain": 0.85}
@@ -263,7 +263,7 @@ def test_the_two_interval_read_fills_only_short_intervals(ruleset) -> None:
 
 @pytest.mark.parametrize(("rot", "expected"), [(3.0, ["pure_rotation"]), (0.05, [])])
 def test_a_camera_standing_still_is_not_pure_rotation(ruleset, rot, expected) -> None:
-    """H/E ~1 and no parallax in both cases; only the panning camera turned (lesson ch6: a
+    """H/E ~1 and no parallax in both cases; only the panning camera turned (a
     stationary robot inserts no keyframes and stays safe)."""
     still = {"h_over_e": 0.98, "parallax_med_deg": 0.02, "rot_deg": rot}
     res = evaluate(frames(20, {range(5, 15): still}), ruleset)

@@ -1,4 +1,4 @@
-"""Hand-made per-frame tables for the verdict tests (healthy values from the lesson)."""
+"""Hand-made per-frame tables for the verdict tests (healthy values from the reference figures)."""
 
 from __future__ import annotations
 

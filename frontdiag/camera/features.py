@@ -5,7 +5,7 @@ ORB-SLAM's extractor, built from OpenCV pieces so that the pyramid is computed o
 1. an 8-level pyramid at scale 1.2, each level resized from the one above it;
 2. per level, FAST at ``fast_threshold`` (20); every bucketing cell that yields nothing is re-run
    at ``fast_threshold_min`` (7) — weak features in the right place beat strong ones in the wrong
-   place (lesson, chapter 1);
+   place (docs/derivations.md §2);
 3. the level's share of the feature budget is proportional to its area (0.6944**level), and is
    spread over the cells round-robin: every cell gives its best corner, then its second best, ...
    until the budget is spent (a per-cell cap that adapts to how many cells have corners);
@@ -58,7 +58,7 @@ def entropy_from_counts(counts: np.ndarray) -> float:
 def level_budgets(n_features: int, n_levels: int, scale_factor: float) -> list[int]:
     """Features per pyramid level, proportional to level area; the remainder goes to the top.
 
-    1000 features, 8 levels, 1.2 -> 323, 224, 156, 108, 75, 52, 36, 26 (lesson, chapter 1).
+    1000 features, 8 levels, 1.2 -> 323, 224, 156, 108, 75, 52, 36, 26 (docs/derivations.md §2).
     """
     f = 1.0 / (scale_factor * scale_factor)
     shares = [f**i for i in range(n_levels)]

@@ -6,7 +6,7 @@ chaining frame-to-frame matches, so no second full matching is needed. Tracks br
 missed frame-to-frame match are re-linked by matching only the keyframe features that lost
 their track against only the current features that have none (a small sub-matrix).
 
-Keyframe policy (lesson, chapter 6), decided after each frame; the frame that triggers it
+Keyframe policy (docs/derivations.md §4), decided after each frame; the frame that triggers it
 becomes the reference of the frames that follow:
 
 * ``lost``          — fewer than ``min_correspondences`` correspondences with the reference;
@@ -15,7 +15,7 @@ becomes the reference of the frames that follow:
   fall below ``kf_min_tracked_share`` (0.9);
 * ``parallax``      — the median parallax reaches ``kf_parallax_deg``; 2.29 deg is a baseline
   of 4% of the median depth (tan 2.29 deg = 0.04), the "few percent of the median tracked
-  depth" of the lesson, measured as an angle because monocular scale is unknown.
+  depth" of the reference figures, measured as an angle because monocular scale is unknown.
 
 H/E needs parallax to say anything: below about twice the homography threshold (4.9 px at
 sigma = 1 px) a 3D scene fits H nearly as well as E. When a keyframe interval is that short
@@ -61,7 +61,7 @@ NAN = float("nan")
 
 @dataclass(frozen=True)
 class CameraParams:
-    """Frontend parameters; the defaults are the lesson's."""
+    """Frontend parameters; the defaults are the reference figures'."""
 
     n_features: int = DEFAULT_FEATURE_BUDGET
     n_levels: int = 8

@@ -1,6 +1,6 @@
 """Two-view geometry against the reference keyframe: E and H on the same correspondences.
 
-Thresholds come from the noise model of chapter 3, not from taste: with localisation noise
+Thresholds come from the noise model, not from taste: with localisation noise
 sigma per coordinate, a squared residual / sigma^2 is chi-square with d degrees of freedom, so
 
 * essential matrix, point-to-epipolar-line (Sampson) distance, d = 1: t = sqrt(3.841) * sigma
@@ -21,7 +21,7 @@ from frontdiag.records import Intrinsics
 CHI2_95_1DOF = 3.841
 CHI2_95_2DOF = 5.991
 E_SAMPLE = 5  # Nister's five-point solver
-TRIANGULATION_GATE_DEG = 1.0  # ORB-SLAM's parallax gate for new landmarks (chapter 6)
+TRIANGULATION_GATE_DEG = 1.0  # ORB-SLAM's parallax gate for new landmarks (docs/derivations.md §4)
 MIN_TRIANGULATED_SHARE = 0.1  # below this, the few points past the gate are stray outliers
 H_SAMPLE = 4
 
@@ -59,7 +59,7 @@ def ransac_iters_run(w: float, max_iters: int, s: int = E_SAMPLE, p: float = 0.9
     (calib3d/src/usac/termination.cpp) stops once the iteration counter reaches
     ln(1-p)/ln(1-w^s) evaluated at the best model so far, capped at ``maxIters``. At the end of
     the run the best model is the one returned, so the count is that bound at the returned
-    inlier ratio: ``min(max_iters, N(w))`` (rounded up like the lesson's table; OpenCV truncates,
+    inlier ratio: ``min(max_iters, N(w))`` (rounded up like the reference table; OpenCV truncates,
     a difference of at most one iteration). Starvation — the estimator stopped before reaching
     the confidence it was asked for — shows as ``ransac_iters_required > ransac_iters_run``,
     which happens exactly when the cap binds.
@@ -164,14 +164,14 @@ def pose_information_condition(f_ref: np.ndarray, f_cur: np.ndarray, K: np.ndarr
     Monocular scale is unknown, so the units are fixed explicitly: rotation in radians,
     translation in units of the median scene depth (depths are scaled to median 1). A point's
     depth is its two-view triangulation when its parallax clears the 1 deg triangulation gate
-    of chapter 6 and it lies in front of both cameras; otherwise its depth is not observable
+    and it lies in front of both cameras; otherwise its depth is not observable
     from these two views and it is placed at the median depth of the triangulated points. When
     fewer than six points, or fewer than 10% of them, clear the gate (pure rotation, or a
     baseline too short to measure), the few that do are stray matches sliding along their
     epipolar lines: every point is then put at depth 1 and the translation, which is noise
     here, is taken as zero. J is the Jacobian of the pixel reprojection in the current view
     with respect to a left-multiplied SE(3) increment [rho, phi]: d(u, v)/d(P_c) times
-    [I | -skew(P_c)] (lesson, chapter 6, worked example 2).
+    [I | -skew(P_c)] (docs/derivations.md §4).
     """
     n = len(f_ref)
     if n < 6:

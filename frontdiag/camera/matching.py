@@ -2,10 +2,10 @@
 
 The whole query-by-train Hamming matrix is computed once, exactly, by FAISS's popcount kernel
 (``faiss.hammings``: XOR + hardware popcount on the packed 256-bit descriptors, about 0.2 ms for
-1000 x 1000 on one core). Both slices of the matrix the lesson asks for come out of it: the
+1000 x 1000 on one core). Both slices of the matrix the reference figures asks for come out of it: the
 row's two best (ratio test) and the column's best (mutual consistency).
 ``cv2.BFMatcher(crossCheck=True)`` cannot be combined with ``knnMatch(k=2)``, and running the kNN
-in both directions would cost more than ORB itself (lesson, chapter 2);
+in both directions would cost more than ORB itself (docs/derivations.md §3);
 ``benchmarks/bench_camera.py`` measures the alternatives side by side.
 """
 
@@ -70,7 +70,7 @@ def match(q_des: np.ndarray, t_des: np.ndarray, ratio: float = 0.8,
     """Nearest neighbour of every query among all train descriptors, with both tests.
 
     ``ratio_reject_rate`` counts every query whose best match fails d1 < ratio*d2, regardless
-    of the mutual check: it is the global repetitive-structure statistic of chapter 2.
+    of the mutual check: it is the global repetitive-structure statistic.
     Ties resolve to the lowest index, in rows and in columns, so the result is deterministic.
     """
     nq, nt = len(q_des), len(t_des)

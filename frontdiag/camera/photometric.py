@@ -1,4 +1,4 @@
-"""Photometric checks at tracked features (lesson, chapter 4).
+"""Photometric checks at tracked features (docs/derivations.md §5).
 
 For the features matched between the previous and the current frame (at most 256, evenly
 spaced), an 8x8 patch is taken around the keypoint in each image. The residual I2 - I1 over those pixels shows an exposure

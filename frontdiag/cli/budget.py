@@ -43,7 +43,7 @@ def register(app: typer.Typer) -> None:
         levels: int = typer.Option(8, "--levels", help="Pyramid levels."),
         scale: float = typer.Option(1.2, "--scale", help="Pyramid scale factor."),
         matching: str | None = typer.Option(
-            None, "--matching", help="guided (window around the prediction) or brute "
+            None, "--matching", metavar="[guided|brute]", help="guided (window around the prediction) or brute "
             "(default guided; with --from: the recording's, else brute)."),
         search_radius: float = typer.Option(25.0, "--search-radius",
                                             help="Guided search window radius (px)."),
@@ -51,12 +51,12 @@ def register(app: typer.Typer) -> None:
                                             help="Correspondences M scored per RANSAC iteration."),
         inlier_ratio: float = typer.Option(0.5, "--inlier-ratio", help="Inlier ratio w."),
         confidence: float = typer.Option(0.999, "--confidence", help="RANSAC confidence p."),
-        solver: str = typer.Option("5pt", "--solver", help="Minimal solver: 5pt or 8pt."),
+        solver: str = typer.Option("5pt", "--solver", metavar="[5pt|8pt]", help="Minimal solver: 5pt or 8pt."),
         pnp_points: int = typer.Option(200, "--pnp-points", help="Map points in PnP."),
         pnp_iters: int = typer.Option(4, "--pnp-iters", help="Gauss–Newton iterations."),
         lidar: str | None = typer.Option(None, "--lidar",
                                          help="Add the LiDAR budget: BEAMSxCOLUMNS@HZ."),
-        icp: str = typer.Option("point-to-plane", "--icp",
+        icp: str = typer.Option("point-to-plane", "--icp", metavar="[point-to-point|point-to-plane]",
                                 help="point-to-point (40 iters) or point-to-plane (8 iters)."),
         icp_iters: int | None = typer.Option(None, "--icp-iters",
                                              help="Override the ICP iteration count."),

@@ -12,13 +12,13 @@ J^T J is a sum of squared, dimensionless sensitivities.
 
 Units of the eigenvalues (``lidar_eig_min``). An eigenvalue of this J^T J counts *points*: a
 direction looked at squarely by k unit-normal points has eigenvalue k. Its size therefore grows
-with the number of inliers, as it does in the lesson, whose scans hold "twenty thousand points
-each". To make scans of any density read on the lesson's scale we report
-``lambda * 20000 / n_inliers``: the information the scan would carry with the lesson's 20,000
-inlier points at the same geometry. On that scale the lesson's healthy ~2,400 means 12 % of the
+with the number of inliers, as it does in the reference figures, whose scans hold "twenty thousand points
+each". To make scans of any density read on the reference scale we report
+``lambda * 20000 / n_inliers``: the information the scan would carry with the reference 20,000
+inlier points at the same geometry. On that scale the reference healthy ~2,400 means 12 % of the
 per-point information lies along the weakest direction, and the degenerate ~12 means 0.06 %
 (about one point in 1,700 sees that direction at all). The condition number ``lidar_cond`` is
-independent of that scaling; it depends only on the choice of ``L``. The lesson's healthy
+independent of that scaling; it depends only on the choice of ``L``. The reference healthy
 ``lambda_max / lambda_min`` ~35 and degenerate > 900 are read on it directly.
 """
 
@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 REFERENCE_POINTS = 20_000
-"""The lesson's scan size: eigenvalues are reported as if the scan had this many inliers."""
+"""The reference scan size: eigenvalues are reported as if the scan had this many inliers."""
 
 _TRANS = ("x (forward)", "y (left)", "z (up)")
 _ROT = ("roll", "pitch", "yaw")
@@ -117,7 +117,7 @@ def describe_direction(vec: np.ndarray, planar: bool = False) -> str:
 
 
 def spectrum(p: np.ndarray, n: np.ndarray, planar: bool = False) -> Spectrum | None:
-    """Spectrum of the point-to-plane information at the solution, on the lesson's scale.
+    """Spectrum of the point-to-plane information at the solution, on the reference scale.
 
     ``p``: inlier source points in the sensor frame; ``n``: unit normals of their targets, rotated
     into the sensor frame. None when there are too few inliers to define it.

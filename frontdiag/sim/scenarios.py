@@ -249,7 +249,7 @@ _LOOP = LoopPath(1.5, 18.5, -3.0, 3.0, 2.0)
 def _healthy_loop(seconds: float) -> list[Part]:
     """Laps of the hall. The camera is labelled healthy along the long sides only: through the
     turns and the short sides between them it sweeps across an end wall and faces a rack front
-    ~2 m away, a shelf face filling the view that H explains nearly as well as E (lesson ch3),
+    ~2 m away, a shelf face filling the view that H explains nearly as well as E,
     so which label applies is a matter of taste and those frames are left unlabelled. The
     LiDAR sees the whole hall and stays healthy throughout."""
     v = 1.2

@@ -1,4 +1,4 @@
-"""The rule engine: the lesson's failure taxonomy as data, evaluated over the per-frame table.
+"""The rule engine: the reference failure taxonomy as data, evaluated over the per-frame table.
 
     ruleset = load_ruleset()                       # rules/*.toml, overrides, --select/--ignore
     result = evaluate(table, ruleset)              # per-row verdicts, episodes, run findings

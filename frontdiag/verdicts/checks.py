@@ -88,7 +88,7 @@ class Check:
         return None
 
 
-# --- chapter 2: feature count x ratio-test rejection --------------------------------------------
+# --- §3 of docs/derivations.md: feature count x ratio-test rejection --------------------------------------------
 
 def _after_step(dmean: np.ndarray, step: float, frames: int) -> np.ndarray:
     """True on each row within `frames` rows after (and at) a |d_mean_intensity| > step row."""
@@ -144,9 +144,9 @@ def _matching_table_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     dm = _v(row, "d_mean_intensity")
     out = []
     if np.isnan(fill):
-        return ["keypoint_fill not computable: the chapter 2 table cannot be read"]
+        return ["keypoint_fill not computable: the three-way matching table (docs/derivations.md §3) cannot be read"]
     if fill < p["fill_floor"]:
-        out.append(f"{_fill_words(kp, fill)} < {p['fill_floor']:g}: detection failed (lesson: "
+        out.append(f"{_fill_words(kp, fill)} < {p['fill_floor']:g}: detection failed (reference: "
                    "~120 of 1000); repetitive structure ruled out, whatever the rejection rate")
         return out
     out.append(f"{_fill_words(kp, fill)} >= {p['fill_floor']:g}: detection_failure ruled out "
@@ -166,11 +166,11 @@ def _matching_table_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     if "max_interval_s" in p and not np.isnan(gap) and gap > p["max_interval_s"]:
         out.append(f"matched across {gap:.3g} s > {p['max_interval_s']:g} s (slower than "
                    "3 Hz): wide-baseline pairs reject more from viewpoint change alone, so "
-                   "the chapter 2 table is not read here")
+                   "the three-way matching table (docs/derivations.md §3) is not read here")
     return out
 
 
-# --- chapter 4: exposure step -------------------------------------------------------------------
+# --- §5 of docs/derivations.md: exposure step -------------------------------------------------------------------
 
 def _step_at(i: int, res: np.ndarray, rej: np.ndarray, p: Params) -> tuple[bool, int]:
     """Whether row i jumps like an exposure step, and after how many rows it recovers
@@ -222,11 +222,11 @@ def _affine_absorbs(df: pd.DataFrame, p: Params) -> np.ndarray:
 
 
 def _exposure_step(df: pd.DataFrame, p: Params) -> np.ndarray:
-    """One frame wide with clean frames on both sides (ch4), recovering within 2-3 (ch2).
+    """One frame wide with clean frames on both sides, recovering within 2-3.
 
     A candidate row has |d_mean_intensity| > dmean_step and is explained by a change of gain:
     matching survives (rejection below reject_max: a gain step rejects ~55%, a scene cut ~100%)
-    or the affine brightness model removes the residual at the matches (ch4's distinguishing
+    or the affine brightness model removes the residual at the matches (distinguishing
     value; where the scene already rejects much, a step adds its ~25 points on top, while a
     scene cut's unrelated patches keep their residual whatever the gain). It is a step when its
     photometric residual jumps in one frame and recovers within recovery_frames; the disturbed
@@ -293,7 +293,7 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     return out
 
 
-# --- chapter 6: H/E x parallax quadrants -------------------------------------------------------
+# --- §4 of docs/derivations.md: H/E x parallax quadrants -------------------------------------------------------
 
 def _quadrant(he: np.ndarray, par: np.ndarray, p: Params) -> np.ndarray:
     """0 healthy, 1 nearly stationary, 2 planar, 3 pure rotation, -1 not computable."""
@@ -394,7 +394,7 @@ def _he_parallax(df: pd.DataFrame, p: Params) -> np.ndarray:
             hit &= constraint_entropy(df) >= p["min_entropy"]
         if "min_rotation_deg" in p:
             # no rotation either: a robot standing still, which accumulates no baseline and
-            # stays safe (lesson, ch6); the failure is the parked camera that pans
+            # stays safe; the failure is the parked camera that pans
             hit &= ~(read["kf_rot_deg"].to_numpy() < p["min_rotation_deg"])
         if "min_parallax_px" in p:
             # below it a 3D scene fits H nearly as well as E: the reading cannot tell (a table
@@ -477,7 +477,7 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     return out
 
 
-# --- chapter 1: clustering confirmed by the pose information matrix ----------------------------
+# --- §2 of docs/derivations.md: clustering confirmed by the pose information matrix ----------------------------
 
 def constraint_entropy(df: pd.DataFrame) -> np.ndarray:
     """The lower of keypoint entropy and essential-inlier entropy (NaN only if both are).
@@ -521,7 +521,7 @@ def _clustering_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     return out
 
 
-# --- chapter 3 / 7: RANSAC starvation -----------------------------------------------------------
+# --- §4 of docs/derivations.md: RANSAC starvation -----------------------------------------------------------
 
 def _ransac_starved(df: pd.DataFrame, p: Params) -> np.ndarray:
     req, ran = col(df, "ransac_iters_required"), col(df, "ransac_iters_run")
@@ -540,7 +540,7 @@ def _ransac_explain(row: Mapping[str, Any], p: Params) -> list[str]:
             "what 1-(1-w^5)^N gives at the budget, not the confidence asked for"]
 
 
-# --- chapter 4: run-level correlation of pose increment with |d mean intensity| ----------------
+# --- §5 of docs/derivations.md: run-level correlation of pose increment with |d mean intensity| ----------------
 
 def pose_increment_deg(df: pd.DataFrame) -> np.ndarray:
     """Per-row pose increment in degrees, for rows of one topic in time order.
@@ -597,7 +597,7 @@ def _pose_intensity_corr(df: pd.DataFrame, p: Params) -> RunOutcome:
 
 _NUM = "number"
 CHECKS: dict[str, Check] = {c.name: c for c in [
-    Check("matching_table", "chapter 2 table: repetitive structure is ~85% ratio-test rejection "
+    Check("matching_table", "three-way matching table: repetitive structure is ~85% ratio-test rejection "
           "with the features intact (not ~120 features: detection failure) and not inside the "
           "2-3 frames after an exposure step (~55%, recovering)", "frame", "camera",
           ("n_keypoints", "keypoint_fill", "ratio_reject_rate", "d_mean_intensity"),
@@ -608,7 +608,7 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
            "dmean_step": "d_mean_intensity"},
           frame=_matching_table, explain=_matching_table_explain, context=_matching_context,
           optional=frozenset({"max_interval_s"}), unread=_matching_unread),
-    Check("exposure_step", "chapter 4: a jump of mean intensity with the photometric residual "
+    Check("exposure_step", "a jump of mean intensity with the photometric residual "
           "jumping with it, clean before and clean again within 2-3 frames",
           "frame", "camera",
           ("d_mean_intensity", "photo_residual_med", "ratio_reject_rate", "affine_gain",
@@ -622,7 +622,7 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
            "residual_affine_max": "photo_residual_affine_med"},
           frame=_exposure_step, explain=_exposure_explain, context=_exposure_context,
           optional=frozenset({"residual_affine_max"})),
-    Check("he_parallax_quadrant", "chapter 6: H/E inlier ratio x median parallax separates pure "
+    Check("he_parallax_quadrant", "H/E inlier ratio x median parallax separates pure "
           "rotation, a planar scene, a nearly stationary camera and healthy motion",
           "frame", "camera", ("h_over_e", "parallax_med_deg", "ref_frame", "entropy_norm",
                               "entropy_inliers_norm", "parallax_med_px", "rot_deg"),
@@ -636,7 +636,7 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
           frame=_he_parallax, explain=_he_parallax_explain, context=_keyframe_read,
           optional=frozenset({"min_entropy", "min_parallax_px", "min_rotation_deg"}),
           unread=_he_parallax_unread),
-    Check("clustering", "chapter 1: low keypoint entropy with enough features, confirmed by the "
+    Check("clustering", "low keypoint entropy with enough features, confirmed by the "
           "condition number of the pose information matrix",
           "frame", "camera", ("entropy_norm", "entropy_inliers_norm", "n_keypoints",
                               "keypoint_fill", "pose_info_cond"),
@@ -645,13 +645,13 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
           {"entropy_alarm": "entropy_norm", "fill_floor": "keypoint_fill",
            "cond_confirm": "pose_info_cond"},
           frame=_clustering, explain=_clustering_explain),
-    Check("ransac_starved", "chapters 3 and 7: the iterations the measured inlier ratio requires "
+    Check("ransac_starved", "the iterations the measured inlier ratio requires "
           "exceed the iterations run, so the frame is untrusted", "frame", "camera",
           ("ransac_iters_required", "ransac_iters_run", "inlier_ratio"), {"margin": _NUM},
           {"ransac_iters_required": "max", "inlier_ratio": "min"},
           {"margin": "ransac_iters_required"},
           frame=_ransac_starved, explain=_ransac_explain),
-    Check("pose_intensity_correlation", "chapter 4: correlation over the run of the pose-increment "
+    Check("pose_intensity_correlation", "correlation over the run of the pose-increment "
           "norm with |d_mean_intensity|; near zero when brightness constancy holds", "run",
           "camera", ("rot_deg", "ref_frame", "t_dir_change_deg", "d_mean_intensity"),
           {"r_alarm": _NUM, "min_frames": _NUM, "dmean_step": _NUM}, {},

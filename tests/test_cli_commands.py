@@ -1,0 +1,202 @@
+"""Commands a new user runs: rules in their own namespace added to the shipped ones, typos that
+get a suggestion, explain on the wrong thing, eval as an accuracy gate, a config file for the
+frontend, --debug after the subcommand, shell completion, and the typed Python API."""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from recording_factory import write_recording
+from test_rules_files import RULE
+
+import frontdiag
+from frontdiag.cli import hoist_root_flags, main
+from frontdiag.config import load_config
+from frontdiag.errors import ConfigError
+from frontdiag.scoring import ConditionScore
+from frontdiag.verdicts import load_ruleset
+
+
+def run(args: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
+    code = main(args)
+    cap = capsys.readouterr()
+    return code, cap.out, cap.err
+
+
+def _rules(tmp_path: Path, rule_id: str = "MY-001", metric: str = "entropy_norm") -> Path:
+    d = tmp_path / "my_rules"
+    d.mkdir(parents=True, exist_ok=True)
+    text = RULE.format(condition="feature_clustering", metric=metric, op="<")
+    (d / "mine.toml").write_text(text.replace('"FD-TST-001"', f'"{rule_id}"'))
+    return d
+
+
+def test_user_rules_take_their_own_namespace_and_add_to_the_shipped(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    d = _rules(tmp_path)
+    shipped = len(load_ruleset().rules)
+    both = load_ruleset(extra_dirs=[d])
+    assert len(both.rules) == shipped + 1 and both.get("MY-001").area == "mine"
+    code, out, _ = run(["rules", "list", "--rules", str(d), "--json"], capsys)
+    ids = [r["id"] for r in json.loads(out)["rules"]]
+    assert code == 0 and "MY-001" in ids and "FD-PLN-001" in ids
+    code, out, _ = run(["rules", "list", "--rules", str(d), "--no-default-rules", "--json"],
+                       capsys)
+    assert [r["id"] for r in json.loads(out)["rules"]] == ["MY-001"]
+    # a shipped ID cannot be redefined by an added directory
+    clash = _rules(tmp_path / "b", rule_id="FD-PLN-001")
+    with pytest.raises(Exception, match="already defined"):
+        load_ruleset(extra_dirs=[clash])
+
+
+def test_a_metric_typo_gets_a_suggestion(tmp_path: Path,
+                                         capsys: pytest.CaptureFixture[str]) -> None:
+    d = _rules(tmp_path, metric="entropy_nrom")
+    code, _, err = run(["rules", "check", str(d)], capsys)
+    assert code == 2 and "did you mean 'entropy_norm'" in err
+    code, _, err = run(["rules", "explain", "FD-PLN-01"], capsys)
+    assert code == 2 and "did you mean 'FD-PLN-001'" in err
+
+
+def test_debug_is_accepted_after_the_subcommand(capsys: pytest.CaptureFixture[str]) -> None:
+    assert hoist_root_flags(["rules", "list", "--debug"]) == ["--debug", "rules", "list"]
+    assert hoist_root_flags(["a", "--", "--debug"]) == ["a", "--", "--debug"]
+    code, out, _ = run(["rules", "list", "--debug"], capsys)
+    assert code == 0 and "FD-PLN-001" in out
+
+
+def test_shell_completion_and_choices_in_help(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, _ = run(["--help"], capsys)
+    assert code == 0 and "--install-completion" in out
+    code, out, _ = run(["analyze", "--help"], capsys)
+    assert "[warn|fail|never]" in out and "[parquet|csv]" in out
+
+
+def test_explain_on_a_recording_says_to_analyse_first(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    log = write_recording(tmp_path / "run.mcap", "mcap", n=4)
+    code, _, err = run(["explain", str(log), "--frame", "1"], capsys)
+    assert code == 2 and "is a recording" in err and "analyze" in err and "--out" in err
+    out = tmp_path / "res"
+    assert main(["analyze", str(log), "--out", str(out), "-q", "--fail-on", "never"]) == 0
+    capsys.readouterr()
+    code, _, err = run(["explain", str(out), "--frame", "99"], capsys)
+    assert code == 2 and "frames 0-3" in err
+    code, stdout, _ = run(["explain", str(out), "--time", "0.1"], capsys)
+    assert code == 0 and "frontend status" in stdout and "verdict (what the rules found)" in stdout
+
+
+def test_eval_finds_labels_from_the_manifest_and_gates_on_accuracy(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    log = write_recording(tmp_path / "run.mcap", "mcap", n=6, shift=4)
+    out = tmp_path / "res"
+    assert main(["analyze", str(log), "--out", str(out), "-q", "--fail-on", "never"]) == 0
+    capsys.readouterr()
+    code, _, err = run(["eval", str(out)], capsys)  # no labels beside the recording yet
+    assert code == 2 and "run.mcap.labels.csv" in err
+    # a label the rules cannot find (exposure step over the whole run): recall 0, F1 0
+    (tmp_path / "run.mcap.labels.csv").write_text(
+        "t_start_ns,t_end_ns,condition\n0,1800000000000000000,exposure_step\n")
+    code, stdout, _ = run(["eval", str(out), "--json"], capsys)
+    doc = json.loads(stdout)
+    cond = next(c for c in doc["conditions"] if c["condition"] == "exposure_step")
+    assert cond["frame_recall"] == 0 and cond["frame_f1"] == 0
+    assert code == 0 and doc["gate"]["passed"]
+    code, stdout, _ = run(["eval", str(out), "--min-recall", "0.5"], capsys)
+    assert code == 1 and "accuracy gate failed" in stdout and "exposure_step" in stdout
+
+
+def test_f1_is_zero_when_nothing_labelled_is_found() -> None:
+    c = ConditionScore("exposure_step", ("camera",), 1, 0, 10, 0, 0, 0, 50, 0)
+    assert c.recall == 0 and c.precision is None and c.f1 == 0.0
+
+
+def test_config_file_sets_the_frontend_and_is_written_back(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    cfg = tmp_path / "frontend.toml"
+    cfg.write_text("[camera]\nn_features = 600\nfast_threshold = 25\n\n[lidar]\nvoxel_size_m = 0.3\n")
+    log = write_recording(tmp_path / "run.mcap", "mcap", n=3)
+    out = tmp_path / "res"
+    code, _, _ = run(["analyze", str(log), "--config", str(cfg), "--ratio", "0.7", "--out",
+                      str(out), "-q", "--fail-on", "never"], capsys)
+    assert code == 0
+    man = json.loads((out / "manifest.json").read_text())
+    assert man["params"]["camera"]["n_features"] == 600
+    assert man["params"]["camera"]["fast_threshold"] == 25
+    assert man["params"]["camera"]["ratio"] == 0.7  # the option wins over the file
+    written = tomllib.loads((out / "frontend.toml").read_text())
+    assert written["camera"]["n_features"] == 600
+    assert load_config(out / "frontend.toml").camera.ratio == 0.7  # reads back
+    cfg.write_text("[camera]\nn_feature = 600\n")
+    code, _, err = run(["analyze", str(log), "--config", str(cfg), "-q"], capsys)
+    assert code == 2 and "n_feature" in err and len(err.strip().splitlines()) <= 2
+    with pytest.raises(ConfigError, match="ratio"):
+        load_config(None, {"camera": {"ratio": 1.5}})
+
+
+def test_the_python_api_takes_the_cli_names_and_returns_a_result(tmp_path: Path) -> None:
+    log = write_recording(tmp_path / "plane.mcap", "mcap", n=6, shift=4)
+    res = frontdiag.analyze(log, intrinsics=(120.0, 120.0, 80.0, 60.0),
+                            features=500, fail_on="warn")
+    assert isinstance(res, frontdiag.Result)
+    df = res.to_pandas()
+    assert isinstance(df, pd.DataFrame) and len(df) == 6
+    assert res.manifest["intrinsics"]["K"][0][0] == 120.0
+    assert res.manifest["params"]["camera"]["n_features"] == 500
+    assert res.gate is not None and res.gate.exit_code == 1 and not res.passed
+    assert not res.episodes.empty
+    written = res.save(tmp_path / "res")
+    assert (tmp_path / "res" / "frames.parquet") in written
+    with pytest.raises(ConfigError):
+        frontdiag.analyze(log, intrinsics=(1.0, 2.0))
+
+
+def test_config_defaults_are_the_frontends_defaults() -> None:
+    from frontdiag.camera.frontend import CameraParams
+    from frontdiag.config import FrontendConfig
+    from frontdiag.lidar.frontend import LidarParams
+
+    cfg = FrontendConfig()
+    assert cfg.camera_params() == CameraParams()
+    assert cfg.lidar_params() == LidarParams()
+
+
+def test_budget_projection_names_provenance_and_says_when_inputs_disagree(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import dataclasses
+
+    from frontdiag.budget import measured, model, render, targets
+
+    sample = Path(__file__).resolve().parents[1] / "sample_logs" / "dock_corridor.mcap"
+    out = tmp_path / "res"
+    assert main(["analyze", str(sample), "--no-camera", "--max-frames", "12", "--out", str(out),
+                 "-q", "--fail-on", "never"]) == 0
+    orin = targets.load_target("orin-nano")
+    assert orin.provenance == "published"
+    rep = measured.measured_report(out, model.Workload(), orin, orin, "the same file")
+    assert "Matching projected" not in rep.method  # LiDAR only: no matching to project
+    assert not any("UNRELIABLE" in n or "faster than" in n for n in rep.notes)
+    grid = render.measured_grids(rep)[0]
+    util = next(r for r in grid.rows if r[0].startswith("Utilisation"))
+    assert util[grid.headers.index("p50 (ms)")] != ""  # the target's figure under the target
+    c = orin.coefficients["icp_solve_ns_per_point"]
+    skewed = dataclasses.replace(orin, coefficients={
+        **orin.coefficients, c.name: dataclasses.replace(c, value=c.value * 100)})
+    rep = measured.measured_report(out, model.Workload(), orin, skewed, "skewed")
+    assert any(n.startswith("UNRELIABLE (lidar)") for n in rep.notes)
+    assert render.measured_grids(rep)[0].title.startswith("UNRELIABLE ESTIMATE")
+    code, stdout, _ = run(["budget"], capsys)
+    assert code == 0 and "published per-unit figures" in stdout and "(given)" in stdout
+
+
+def test_odometry_logged_after_a_scan_is_used_as_its_prior() -> None:
+    sample = Path(__file__).resolve().parents[1] / "sample_logs" / "dock_corridor.mcap"
+    res = frontdiag.analyze(sample, no_camera=True, max_frames=8, no_rules=True)
+    assert res.manifest["topics"]["odometry"] == "/odom"
+    priors = list(res.table["lidar_prior"])
+    assert len(priors) == 8  # buffered scans still respect --max-frames
+    assert priors[0] == "none" and set(priors[1:]) == {"odometry"}
