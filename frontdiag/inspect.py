@@ -39,6 +39,8 @@ class RecordingReport:
     choice: TopicChoice | None
     choice_error: str | None
     oddities: list[str] = field(default_factory=list)
+    fault: str | None = None
+    """Damage met while reading (the counts cover what was readable before it)."""
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -49,6 +51,7 @@ class RecordingReport:
                 "camera": self.choice.camera, "camera_info": self.choice.camera_info,
                 "lidar": self.choice.lidar, "odometry": self.choice.odometry},
             "choice_error": self.choice_error, "oddities": self.oddities,
+            "fault": self.fault,
         }
 
 
@@ -117,7 +120,7 @@ def inspect_recording(path: Path | str, gap_factor: float = 3.0) -> RecordingRep
         choice_error = str(exc)
     duration = (end - start) / 1e9 if start is not None and end is not None else None
     return RecordingReport(path, backend, duration, start, end, reports, choice, choice_error,
-                           oddities)
+                           oddities, None if fault is None else fault.message)
 
 
 def _detail(msg: Any, msgtype: str) -> str:

@@ -117,6 +117,8 @@ class InfoDoc(_Doc):
     analyze_would_use: dict[str, str | None] | None
     choice_error: str | None
     oddities: list[str]
+    fault: str | None = Field(default=None, description="damage met while reading: the command "
+                              "exits 2, the counts cover what was readable before it")
 
 
 # --- explain --------------------------------------------------------------------------------

@@ -168,3 +168,35 @@ def test_junit_suite_is_the_recording_and_warn_findings_are_not_passes(tmp_path:
     assert skipped is not None and "not gated" in skipped.get("message")
     assert rep.find("failure") is None
     assert int(root.find("testsuite").get("skipped")) >= 1
+
+
+def test_library_warnings_are_console_lines_not_log_records(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    import logging
+
+    from frontdiag.cli import ConsoleWarnings, install_console_warnings
+
+    install_console_warnings()
+    logging.getLogger("frontdiag.io.readers").warning("%s: index missing; reading sequentially",
+                                                      "run[1].bag")
+    ConsoleWarnings.flush()
+    err = capsys.readouterr().err
+    assert err.strip() == "warning: run[1].bag: index missing; reading sequentially"
+    # a fatal error about the same file supersedes its warnings: one line, the error
+    logging.getLogger("frontdiag.io.readers").warning("%s has no summary section", "/d/cut.mcap")
+    ConsoleWarnings.flush(superseded_by="/d/cut.mcap: damaged after 50 messages")
+    assert capsys.readouterr().err == ""
+
+
+def test_info_on_a_damaged_recording_exits_2_after_its_report(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from recording_factory import cut_recording
+
+    cut = cut_recording(tmp_path, "mcap", "run.mcap", n=60)
+    code, out, err = run(["info", str(cut)], capsys)
+    assert code == 2
+    assert "cut_run.mcap" in out and "damaged" in out  # the report is still printed
+    assert "cut_run.mcap" in err and err.startswith("error:")
+    assert len(err.strip().splitlines()) <= 2  # the one-line error and its hint
+    code, out, _ = run(["info", str(cut), "--json"], capsys)
+    assert code == 2 and json.loads(out)["fault"]

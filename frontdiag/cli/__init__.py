@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import sys
+from typing import ClassVar
 
 import typer
 from rich.console import Console
@@ -70,8 +71,54 @@ def _root(
                                  is_eager=True, help="Print the version and exit."),
 ) -> None:
     _state["debug"] = debug
-    logging.basicConfig(level=logging.DEBUG if debug else logging.WARNING,
-                        format="%(levelname)s %(name)s: %(message)s")
+    if debug:
+        logging.basicConfig(level=logging.DEBUG, format="%(levelname)s %(name)s: %(message)s")
+    else:
+        install_console_warnings()
+
+
+class ConsoleWarnings(logging.Handler):
+    """The library's warnings (a damaged index read sequentially, a scan that failed) as one
+    console line each on stderr, ``warning: ...``, instead of raw ``WARNING module:`` log
+    records; the logger name and traceback stay for --debug."""
+
+    pending: ClassVar[list[str]] = []
+    """Warnings of the running command, printed when it ends (after the progress bar)."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            text = record.getMessage()
+        except Exception:  # a malformed record must not stop the command
+            text = str(record.msg)
+        if text not in self.pending:
+            self.pending.append(text)
+
+    @classmethod
+    def flush(cls, superseded_by: str | None = None) -> None:
+        """Print the pending warnings; a warning about the file a fatal error names is left
+        out, so damage that stops a command is one line (the error), not a warning and an
+        error about the same thing."""
+        from rich.markup import escape
+
+        err = make_console(stderr=True)
+        for text in cls.pending:
+            path = text.split(":", 1)[0].split(" ", 1)[0]
+            if superseded_by is not None and path and path in superseded_by:
+                continue
+            err.print(f"[yellow]warning:[/] {escape(text)}", highlight=False, soft_wrap=True)
+        cls.pending.clear()
+
+
+def install_console_warnings() -> None:
+    """Route frontdiag's WARNING records (and worse) to :class:`ConsoleWarnings`, once. They
+    still propagate, so a root handler an embedding application (or pytest) installs sees them;
+    the CLI itself installs none, so nothing prints twice."""
+    root = logging.getLogger("frontdiag")
+    if not any(isinstance(h, ConsoleWarnings) for h in root.handlers):
+        handler = ConsoleWarnings(logging.WARNING)
+        root.addHandler(handler)
+    if root.level == logging.NOTSET or root.level > logging.WARNING:
+        root.setLevel(logging.WARNING)
 
 
 def _register() -> None:
@@ -112,6 +159,7 @@ def main(argv: list[str] | None = None) -> int:
         rv = typer.main.get_command(app).main(args=args, prog_name="frontdiag",
                                                standalone_mode=False)
     except FrontdiagError as exc:
+        ConsoleWarnings.flush(superseded_by=str(exc))
         if debug:
             err.print_exception()
         err.print(f"[bold red]error:[/] {exc}", highlight=False, markup=True, soft_wrap=True)
@@ -135,6 +183,8 @@ def main(argv: list[str] | None = None) -> int:
                       f"{exc_val} (a bug in frontdiag; rerun with --debug for the traceback)",
                       highlight=False, soft_wrap=True)
         return EXIT_INTERNAL
+    finally:
+        ConsoleWarnings.flush()
     if isinstance(rv, int):
         return rv
     return EXIT_OK

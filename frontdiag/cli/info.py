@@ -40,7 +40,7 @@ def info_cmd(
         from frontdiag.json_models import InfoDoc, emit
 
         typer.echo(emit(InfoDoc, json.loads(json.dumps(rep.to_dict(), default=str))))
-        return 0
+        return _damage_exit(rep)
     con = make_console()
     dur = f"{rep.duration_s:.2f} s" if rep.duration_s is not None else "unknown"
     con.print(f"[bold]{rep.path}[/]  [dim]{rep.backend} reader[/]  duration {dur}")
@@ -62,4 +62,15 @@ def info_cmd(
         con.print(f"[bold]analyze cannot start on its own[/]: {rep.choice_error}", highlight=False)
     for odd in rep.oddities:
         con.print(f"[yellow]odd:[/] {odd}", highlight=False)
-    return 0
+    return _damage_exit(rep)
+
+
+def _damage_exit(rep: object) -> int:
+    """Damage is a non-zero exit, as `mcap doctor` makes it: exit 2 with the one-line error,
+    after the report of what was readable."""
+    from frontdiag.errors import EXIT_OK, FrontdiagError
+
+    fault = getattr(rep, "fault", None)
+    if fault is None:
+        return EXIT_OK
+    raise FrontdiagError(str(fault), hint="the report above covers what was readable before it")
