@@ -45,7 +45,8 @@ def test_rules_explain_unknown_id_exits_2(capsys) -> None:
 def test_explain_frame_shows_fired_rule_and_ruled_out_lookalike(result_dir, capsys) -> None:
     assert main(["explain", str(result_dir), "--frame", "15"]) == 0
     out = capsys.readouterr().out
-    assert "verdict fail, conditions pure_rotation" in out
+    assert "verdict (what the rules found): fail" in out and "conditions pure_rotation" in out
+    assert "frontend status: ok" in out  # the frontend evaluated it; the rules judged it
     assert "FD-ROT-001 pure_rotation [fail] FIRED" in out
     assert "planar_degeneracy ruled out by parallax 0.04 deg < 0.3" in out
     assert "parallax_med_deg" in out and "FD-ROT-001 parallax_split_deg=0.3" in out
