@@ -200,3 +200,24 @@ def test_odometry_logged_after_a_scan_is_used_as_its_prior() -> None:
     priors = list(res.table["lidar_prior"])
     assert len(priors) == 8  # buffered scans still respect --max-frames
     assert priors[0] == "none" and set(priors[1:]) == {"odometry"}
+
+
+def test_calibration_spread_is_kept_and_a_noisy_one_is_called_unreliable(tmp_path: Path) -> None:
+    import dataclasses
+
+    from frontdiag.budget import measured, model, render, targets
+
+    sample = Path(__file__).resolve().parents[1] / "sample_logs" / "dock_corridor.mcap"
+    out = tmp_path / "res"
+    assert main(["analyze", str(sample), "--no-camera", "--max-frames", "6", "--out", str(out),
+                 "-q", "--fail-on", "never"]) == 0
+    orin = targets.load_target("orin-nano")
+    c = orin.coefficients["voxel_ns_per_point"]
+    noisy = dataclasses.replace(orin, provenance="calibrated", coefficients={
+        **orin.coefficients, c.name: dataclasses.replace(c, how="measured", spread=3.5)})
+    back = targets.parse_target(tomllib.loads(targets.target_to_toml(noisy)))
+    assert back.coefficients[c.name].spread == 3.5  # the target file keeps it
+    rep = measured.measured_report(out, model.Workload(), orin, noisy, "noisy")
+    assert any(n.startswith("UNRELIABLE (calibration)") and "voxel_ns_per_point ×3.5" in n
+               for n in rep.notes)
+    assert render.measured_grids(rep)[0].title.startswith("UNRELIABLE ESTIMATE")

@@ -30,6 +30,10 @@ PNP_POINTS, PNP_ITERS = 200, 4
 LIDAR_RAW, LIDAR_KEPT, LIDAR_MAP = 128 * 1800, 15000, 20000
 
 
+_SPREADS: list[float] = []
+"""p90/p10 of each timing taken since the last coefficient was recorded (see :class:`_Timed`)."""
+
+
 def _median_s(fn: Callable[[], object], repeats: int) -> float:
     fn()  # warm-up: first-call allocations and lazy initialisation are not the steady state
     samples = []
@@ -37,7 +41,23 @@ def _median_s(fn: Callable[[], object], repeats: int) -> float:
         t0 = time.perf_counter()
         fn()
         samples.append(time.perf_counter() - t0)
+    lo, hi = np.percentile(samples, [10, 90])
+    _SPREADS.append(float(hi / lo) if lo > 0 else float("inf"))
     return statistics.median(samples)
+
+
+class _Timed(dict[str, tuple[float, str]]):
+    """Coefficient -> (value, source), remembering the widest spread of the timings taken for
+    each entry (a coefficient built from two timings is as noisy as the noisier one)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.spread: dict[str, float] = {}
+
+    def __setitem__(self, key: str, value: tuple[float, str]) -> None:
+        super().__setitem__(key, value)
+        self.spread[key] = max(_SPREADS) if _SPREADS else 1.0
+        _SPREADS.clear()
 
 
 def _image(rng: np.random.Generator) -> np.ndarray:
@@ -66,10 +86,10 @@ def _two_views(rng: np.random.Generator, n: int, inlier_ratio: float
     return X, p1, p2, K
 
 
-def _camera(rng: np.random.Generator, repeats: int) -> dict[str, tuple[float, str]]:
+def _camera(rng: np.random.Generator, repeats: int) -> _Timed:
     import cv2
 
-    out: dict[str, tuple[float, str]] = {}
+    out = _Timed()
     img = _image(rng)
     K = np.array([[700.0, 0, W / 2], [0, 700.0, H / 2], [0, 0, 1]])
     D = np.array([-0.25, 0.08, 0.0, 0.0, 0.0])
@@ -179,10 +199,10 @@ def _camera(rng: np.random.Generator, repeats: int) -> dict[str, tuple[float, st
     return out
 
 
-def _lidar(rng: np.random.Generator, repeats: int) -> dict[str, tuple[float, str]]:
+def _lidar(rng: np.random.Generator, repeats: int) -> _Timed:
     from scipy.spatial import cKDTree
 
-    out: dict[str, tuple[float, str]] = {}
+    out = _Timed()
     # a box-shaped room: floor and four walls, 20 m x 10 m x 4 m, with range noise
     n = LIDAR_RAW
     face = rng.integers(0, 5, n)
@@ -271,7 +291,10 @@ def calibrate(repeats: int = 15, seed: int = 0, name: str | None = None) -> Targ
     cv2.setNumThreads(1)
     try:
         rng = np.random.default_rng(seed)
-        measured = {**_camera(rng, repeats), **_lidar(rng, repeats)}
+        _SPREADS.clear()
+        cam, lid = _camera(rng, repeats), _lidar(rng, repeats)
+        measured = {**cam, **lid}
+        spread = {**cam.spread, **lid.spread}
     finally:
         cv2.setNumThreads(threads)
     info = machine_info()
@@ -284,7 +307,7 @@ def calibrate(repeats: int = 15, seed: int = 0, name: str | None = None) -> Targ
         description=f"{info['cpu']} on {host}, one thread, measured by frontdiag budget "
                     "--calibrate",
         provenance="calibrated",
-        coefficients={k: Coefficient(k, float(v), "measured", src)
+        coefficients={k: Coefficient(k, float(v), "measured", src, spread.get(k))
                       for k, (v, src) in measured.items()},
         machine=info,
     )

@@ -312,6 +312,9 @@ def measured_report(result_dir: Path, workload: model.Workload, target: Target,
                           tuple(sensors), tuple(notes))
 
 
+NOISY = 2.0
+"""A calibration whose repeats of one timing spread wider than this (p90/p10) measured the
+machine's load more than the machine."""
 DISAGREE = 5.0
 """Stage ratios spreading wider than this factor within one sensor (real CPUs of one class
 differ per operation by 2-3x) mean the target's
@@ -324,6 +327,14 @@ def disagreement_notes(sensors: list[SensorMeasured], target: Target, machine: T
     from frontdiag.budget.targets import PROVENANCE_WORDS
 
     out = []
+    noisy = {c.name: c.spread for c in machine.coefficients.values()
+             if c.spread is not None and c.spread > NOISY}
+    if noisy:
+        out.append("UNRELIABLE (calibration): this machine's timings varied by more than "
+                   f"×{NOISY:g} between repeats (p90/p10) for "
+                   + ", ".join(f"{k} ×{v:.2g}" for k, v in sorted(noisy.items()))
+                   + "; the machine was busy while it calibrated. Rerun `frontdiag budget "
+                   "--from DIR --recalibrate` on an idle machine.")
     for s in sensors:
         ratios = [st.ratio for st in s.stages if st.ratio > 0]
         if len(ratios) >= 2 and max(ratios) / min(ratios) > DISAGREE:

@@ -329,7 +329,8 @@ def _footnotes(w: Workload, t: Target, *sensors: SensorBudget) -> tuple[str, ...
     used = {c for s in sensors for st in s.stages for c in st.coefficients}
     from frontdiag.budget.targets import HOW_WORDS, PROVENANCE_WORDS
 
-    listed = ", ".join(f"{c.name} {c.value:g} {c.unit} ({c.how})"
+    listed = ", ".join(f"{c.name} {c.value:g} {c.unit} ({c.how}"
+                       + (f", timings spread ×{c.spread:.2g}" if c.spread else "") + ")"
                        for c in t.coefficients.values() if c.name in used)
     notes.insert(0, f"Coefficients of {t.name}: "
                  f"{PROVENANCE_WORDS.get(t.provenance, t.provenance)}; " + listed + ". "

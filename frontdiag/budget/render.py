@@ -198,7 +198,8 @@ def measured_grids(report: MeasuredReport) -> list[Grid]:
             ("Longest run of consecutive misses", "", str(s.longest_miss_run), *pad),
         ]
         status = ", ".join(f"{k} {v}" for k, v in sorted(s.statuses.items()))
-        unsound = any(n.startswith(f"UNRELIABLE ({s.sensor})") for n in report.notes)
+        unsound = any(n.startswith((f"UNRELIABLE ({s.sensor})", "UNRELIABLE (calibration)"))
+                      for n in report.notes)
         title = (f"{'UNRELIABLE ESTIMATE' if unsound else 'ESTIMATE'} — {s.sensor} timings recorded here ({report.result_dir}, "
                  f"{s.frames} frames{': ' + status if status else ''}), projected onto "
                  f"{report.target}; period {s.period_source}")

@@ -52,6 +52,9 @@ class Coefficient:
     value: float
     how: str  # given | derived | measured
     source: str
+    spread: float | None = None
+    """Measured coefficients: p90 / p10 of the timings behind the value (1.0 = every repeat
+    took the same time); how far one calibration can be trusted."""
 
     @property
     def unit(self) -> str:
@@ -63,7 +66,7 @@ PROVENANCE_ALIASES = {"lesson": "published"}
 
 PROVENANCE_WORDS = {
     "published": "published per-unit figures for that hardware, not measured by frontdiag",
-    "calibrated": "measured on that machine by `frontdiag budget --calibrate`",
+    "calibrated": "timed by `frontdiag budget --calibrate` on the machine the file names",
 }
 HOW_WORDS = {
     "given": "stated per unit by the source",
@@ -159,7 +162,12 @@ def parse_target(data: dict, path: Path | None = None) -> Target:
                               "came from")
         if how not in HOW:
             raise ConfigError(f"{where}: coefficients.{key}.how must be one of {', '.join(HOW)}")
-        coeffs[key] = Coefficient(key, float(value), how, source)
+        spread = entry.get("spread")
+        if spread is not None and (isinstance(spread, bool) or not isinstance(spread, int | float)
+                                   or not spread >= 1):
+            raise ConfigError(f"{where}: coefficients.{key}.spread must be a number >= 1")
+        coeffs[key] = Coefficient(key, float(value), how, source,
+                                  None if spread is None else float(spread))
     machine = data.get("machine", {})
     return Target(
         name=head["name"],
@@ -194,5 +202,8 @@ def target_to_toml(target: Target, header: str = "") -> str:
         if c is None:
             continue
         lines += [f"[coefficients.{name}]", f"value = {c.value:.6g}",
-                  f"how = {_toml_str(c.how)}", f"source = {_toml_str(c.source)}", ""]
+                  f"how = {_toml_str(c.how)}", f"source = {_toml_str(c.source)}"]
+        if c.spread is not None:
+            lines.append(f"spread = {c.spread:.3g}")
+        lines.append("")
     return "\n".join(lines)
