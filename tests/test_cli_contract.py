@@ -200,3 +200,12 @@ def test_info_on_a_damaged_recording_exits_2_after_its_report(
     assert len(err.strip().splitlines()) <= 2  # the one-line error and its hint
     code, out, _ = run(["info", str(cut), "--json"], capsys)
     assert code == 2 and json.loads(out)["fault"]
+
+
+def test_every_command_prints_through_the_non_truncating_console() -> None:
+    # a bare rich Console() lays out for 80 columns off a terminal and cuts names with "…"
+    cli = Path(__file__).resolve().parents[1] / "frontdiag" / "cli"
+    offenders = [p.name for p in cli.glob("*.py")
+                 if p.name != "_console.py" and "Console(" in p.read_text().replace(
+                     "make_console(", "")]
+    assert offenders == []

@@ -26,18 +26,18 @@ def is_fleet(logs: list[Path], scheduler: str | None) -> bool:
 def run_fleet(logs: list[Path], out: Path | None, opts: Any, *, jobs: int,
               scheduler: str | None, fail_on: str, csv: bool, force: bool, as_json: bool,
               quiet: bool) -> int:
-    from rich.console import Console
     from rich.markup import escape
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
     from frontdiag import fleet
+    from frontdiag.cli._console import make_console
     from frontdiag.output import prepare_out_dir
 
     if out is None:
         raise ConfigError("several recordings need --out DIR (one result folder each)")
     tasks = fleet.plan_tasks(logs, out, opts, fail_on=fail_on, csv=csv, force=force)
     out = prepare_out_dir(out, [t.path for t in tasks])
-    err = Console(stderr=True)
+    err = make_console(stderr=True)
     show = not quiet and not as_json
     with Progress(TextColumn("[bold]fleet[/]"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("recordings"), TimeElapsedColumn(), console=err,
@@ -59,7 +59,7 @@ def run_fleet(logs: list[Path], out: Path | None, opts: Any, *, jobs: int,
         typer.echo(json.dumps({"summary": str(path), "exit_code": code, "recordings": rows},
                               indent=2, default=str))
     elif not quiet:
-        render_summary(Console(), rows, path)
+        render_summary(make_console(), rows, path)
     return code
 
 

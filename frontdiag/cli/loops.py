@@ -50,7 +50,7 @@ def loops_cmd(
                                     help="Result directory: loops.parquet, manifest.json."),
     sqrt_info: bool = typer.Option(False, "--sqrt-info",
                                    help="The file stores the square root of the information."),
-    layout: str = typer.Option("auto", "--layout",
+    layout: str = typer.Option("auto", "--layout", metavar="[auto|g2o|toro]",
                                help="2D information order: auto (by tag), g2o or toro."),
     odom_max_gap: int = typer.Option(1, "--odom-max-gap",
                                      help="Edges spanning at most this many ids are odometry "
@@ -59,7 +59,7 @@ def loops_cmd(
                                            help="Loop rules TOML instead of rules/loops/loops.toml."),
     explain: str | None = typer.Option(None, "--explain", metavar="ID",
                                        help="Explain one loop: its number or I-J vertex ids."),
-    fail_on: str = typer.Option("fail", "--fail-on",
+    fail_on: str = typer.Option("fail", "--fail-on", metavar="[warn|fail|never]",
                                 help="Exit 1 when a loop of this severity exists: warn, fail, "
                                      "never."),
     junit: Path | None = typer.Option(None, "--junit", help="Write JUnit XML (one case per rule)."),
@@ -67,8 +67,7 @@ def loops_cmd(
     top: int = typer.Option(10, "--top", help="Flagged loops listed in the summary."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress or table."),
 ) -> int:
-    from rich.console import Console
-
+    from frontdiag.cli._console import make_console
     from frontdiag.errors import ConfigError
     from frontdiag.loops import audit, read_graph, summary
     from frontdiag.loops.report import gate_loops, render_loops, write_loops_junit
@@ -83,7 +82,7 @@ def loops_cmd(
     if junit is not None and junit.resolve() == graph_file.resolve():
         raise ConfigError(f"--junit {junit}: would overwrite the input graph")
     rules = load_loop_rules(rules_file)
-    err = Console(stderr=True)
+    err = make_console(stderr=True)
     show = not quiet and not as_json
     graph = read_graph(graph_file, sqrt_info=sqrt_info, layout=layout)
     with err.status("auditing loops", spinner="dots") if show else _Null() as status:
@@ -121,7 +120,7 @@ def loops_cmd(
             payload["optimize"] = opt
         typer.echo(json.dumps(plain(payload), indent=2, default=str))
     elif not quiet:
-        render_loops(Console(), result, summ, gate_result, out_dir, opt, top)
+        render_loops(make_console(), result, summ, gate_result, out_dir, opt, top)
     return gate_result.exit_code
 
 
