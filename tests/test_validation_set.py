@@ -221,3 +221,12 @@ def test_source_reads_a_git_directory_at_the_manifest_commit(tmp_path: Path, bar
         src.read("missing.txt")
     with pytest.raises(ConfigError, match="not found"):
         build.Source("o/other", first, root).read("a.txt")
+
+
+def test_build_checks_the_output_directory_before_reading_sources(tmp_path: Path) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    m = _write(tmp_path, _source_tree(tmp_path))
+    with pytest.raises(ConfigError, match="cannot write to --out"):
+        build.main(["--src", str(tmp_path / "nowhere"), "--out", str(blocker / "out"),
+                    "--manifest", str(m)])

@@ -340,6 +340,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         a.manifest.write_text(json.dumps(m, indent=1) + "\n")
         print(f"{n} sha256 values added to {a.manifest}")
         return 0
+    try:
+        a.out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ConfigError(f"cannot write to --out {a.out} ({exc.strerror})",
+                          hint="choose a writable directory") from exc
     wanted = set(a.only) if a.only else None
     unknown = (wanted or set()) - {r["name"] for r in m["recordings"]}
     if unknown:
@@ -368,5 +373,6 @@ if __name__ == "__main__":
     try:
         raise SystemExit(main())
     except FrontdiagError as exc:
-        print(f"build.py: {exc}", file=sys.stderr)
+        hint = f" ({exc.hint})" if exc.hint else ""
+        print(f"build.py: {exc}{hint}", file=sys.stderr)
         raise SystemExit(2) from None

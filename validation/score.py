@@ -118,5 +118,6 @@ if __name__ == "__main__":
     try:
         raise SystemExit(main())
     except FrontdiagError as exc:
-        print(f"score.py: {exc}", file=sys.stderr)
+        hint = f" ({exc.hint})" if exc.hint else ""
+        print(f"score.py: {exc}{hint}", file=sys.stderr)
         raise SystemExit(2) from None
