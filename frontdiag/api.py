@@ -31,6 +31,7 @@ from frontdiag.metrics import CAMERA_COLUMNS, LIDAR_COLUMNS
 from frontdiag.records import Intrinsics
 from frontdiag.runner import (
     GAP_STATUS,
+    FrameSink,
     ProgressFn,
     SensorStream,
     StreamRun,
@@ -136,12 +137,13 @@ def _expected(count: int | None, opts: AnalysisOptions, rec: Recording) -> int |
 # --------------------------------------------------------------------------------------------
 
 def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
-                 progress: ProgressFn | None = None) -> Analysis:
+                 progress: ProgressFn | None = None, sink: FrameSink | None = None) -> Analysis:
     """Re-run the frontend on a recording and return the per-frame table with its manifest.
 
     Damage met part-way (a truncated file, an undecodable topic) does not lose the frames
     before it: they are returned with ``Analysis.fault`` set. Ctrl-C does the same with
-    ``Analysis.interrupted``.
+    ``Analysis.interrupted``. ``sink`` sees every analysed frame as it goes (one process only:
+    with ``jobs > 1`` the frames are analysed elsewhere and it is not called).
     """
     opts = options or AnalysisOptions()
     if opts.stride < 1:
@@ -181,7 +183,8 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
             run = run_windows(path, rec, choice, opts, intr, progress=progress,
                               expected=expected)
         else:
-            run = run_stream(rec, choice, opts, intr, progress=progress, expected=expected)
+            run = run_stream(rec, choice, opts, intr, progress=progress, expected=expected,
+                             sink=sink)
         fault = _stream_notes(path, rec, run, notes)
         table = _table(run.rows)
         manifest = _manifest(path, rec, choice, intr, opts, run.cam, run.lid, notes,

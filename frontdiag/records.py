@@ -50,6 +50,7 @@ class CameraFrame:
     gray: np.ndarray  # (H, W) uint8
     encoding: str
     ms_decode: float = 0.0
+    frame_id: str = ""  # the image header's frame_id
 
 
 @dataclass(frozen=True)
@@ -68,3 +69,39 @@ class LidarScan:
     frame_id: str = ""
     n_raw: int = 0  # points before NaN/inf rows were dropped
     ms_decode: float = 0.0
+
+
+# keypoint states in CameraAnnotation.state
+KP_UNTRACKED = 0  # no correspondence with the reference keyframe
+KP_INLIER = 1  # an essential-matrix inlier against the reference
+KP_OUTLIER = 2  # a correspondence the essential matrix rejected
+KP_TRACKED = 3  # a correspondence, not tested (no intrinsics, or too few for E)
+
+
+@dataclass(frozen=True)
+class CameraAnnotation:
+    """What the camera frontend computed for one frame, for drawing it (not a metric).
+
+    Coordinates are image pixels as detected (distorted). ``flow_ref``/``flow_cur`` pair the
+    inlier keypoints with their positions in the reference keyframe ``ref_frame``.
+    """
+
+    width: int
+    height: int
+    xy: np.ndarray  # (N, 2) float32 keypoints
+    state: np.ndarray  # (N,) uint8, KP_* above
+    grid_counts: np.ndarray  # (rows, cols) int keypoints per entropy-grid cell (6 x 8)
+    ref_frame: int = -1
+    flow_ref: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))
+    flow_cur: np.ndarray = field(default_factory=lambda: np.zeros((0, 2), np.float32))
+
+
+@dataclass(frozen=True)
+class ScanAnnotation:
+    """What the LiDAR frontend used from one scan: the downsampled, deskewed points (sensor
+    frame) and the weakest direction of the registration (rotation xyz, translation xyz)."""
+
+    points: np.ndarray  # (N, 3) float64
+    weak_vec: np.ndarray | None = None  # (6,) or (3,) for planar scans
+    weak_dir: str = ""
+    planar: bool = False

@@ -31,6 +31,10 @@ log = logging.getLogger(__name__)
 GAP_STATUS = "after_gap"  # first row after a gap: the frontend started afresh (no reference)
 
 ProgressFn = Callable[[int, int | None], None]
+FrameSink = Callable[[dict[str, Any], Any, CameraFrame | LidarScan], None]
+"""sink(row, annotation, record) for every analysed (owned) frame, as it is analysed: the
+frontend's ``last_annotation`` (keypoints, inliers, grid, flow; used points, weak direction)
+passes through without being kept, so a writer can stream it (frontdiag.report.mcap_)."""
 """progress(frames_done, frames_expected_or_None)."""
 
 
@@ -73,6 +77,7 @@ class SensorStream:
         self.gaps = GapDetector()
         self.owned = True  # the current message counts (not warm-up)
         self.draining = False  # past the window: frames only complete rows already made
+        self.sink: FrameSink | None = None
 
     def analyse(self, record: CameraFrame | LidarScan, frontend: Any, sensor: str,
                 rec_start: int) -> dict[str, Any]:
@@ -87,6 +92,8 @@ class SensorStream:
             row["status"] = GAP_STATUS
         if self.owned:
             self.stats.analysed += 1
+            if self.sink is not None:
+                self.sink(row, getattr(frontend, "last_annotation", None), record)
         return row
 
     def admit(self, log_ns: int) -> bool:
@@ -228,13 +235,15 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
                progress: ProgressFn | None = None, expected: int | None = None,
                frames: FrameWindow | None = None, resume: Any = None,
                until: Callable[[int, Any], bool] | None = None,
-               record_keys: bool = False, want_end_state: bool = False) -> StreamRun:
+               record_keys: bool = False, want_end_state: bool = False,
+               sink: FrameSink | None = None) -> StreamRun:
     """One sequential pass over the selected messages of ``rec``.
 
     ``frames`` restricts the camera to a window of frames (warm-up rows dropped); ``resume``
     starts the camera frontend from a hand-over state (:func:`camera_state`); ``until(frame,
     key)`` stops the pass after a camera frame; ``record_keys`` keeps the camera state key after
-    every frame. Faults and Ctrl-C end the pass and keep what was computed.
+    every frame; ``sink`` sees each row kept, with what the frontend drew it from. Faults and
+    Ctrl-C end the pass and keep what was computed.
     """
     rows: list[dict[str, Any]] = []
     cam_front = lid_front = None
@@ -262,6 +271,7 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
     for stream in (cam_stream, lid_stream):
         if stream is not None:
             stream.window_start = s
+            stream.sink = sink
     done = 0
     by_frame: dict[int, dict[str, Any]] = {}  # owned camera rows, for completions
 

@@ -36,13 +36,21 @@ def spatial_entropy(xy: np.ndarray, width: int, height: int,
     Returns ``(H / log2(cols*rows), occupied_cells)``; NaN when there are no keypoints.
     Uniform -> 1.0; everything in one cell -> 0.0.
     """
-    cols, rows = grid
     if len(xy) == 0 or width <= 0 or height <= 0:
         return float("nan"), 0
+    counts = grid_counts(xy, width, height, grid)
+    return entropy_from_counts(counts), int(np.count_nonzero(counts))
+
+
+def grid_counts(xy: np.ndarray, width: int, height: int,
+                grid: tuple[int, int] = ENTROPY_GRID) -> np.ndarray:
+    """Keypoints per cell of a ``cols x rows`` grid, as a ``(rows, cols)`` int array."""
+    cols, rows = grid
+    if len(xy) == 0 or width <= 0 or height <= 0:
+        return np.zeros((rows, cols), np.int64)
     cx = np.clip((xy[:, 0] * (cols / width)).astype(np.intp), 0, cols - 1)
     cy = np.clip((xy[:, 1] * (rows / height)).astype(np.intp), 0, rows - 1)
-    counts = np.bincount(cy * cols + cx, minlength=cols * rows)
-    return entropy_from_counts(counts), int(np.count_nonzero(counts))
+    return np.bincount(cy * cols + cx, minlength=cols * rows).reshape(rows, cols)
 
 
 def entropy_from_counts(counts: np.ndarray) -> float:

@@ -41,7 +41,13 @@ from typing import Any
 import cv2
 import numpy as np
 
-from frontdiag.camera.features import Features, OrbExtractor, spatial_entropy
+from frontdiag.camera.features import (
+    Features,
+    OrbExtractor,
+    entropy_from_counts,
+    grid_counts,
+    spatial_entropy,
+)
 from frontdiag.camera.geometry import (
     E_SAMPLE,
     homography_threshold_px,
@@ -53,7 +59,15 @@ from frontdiag.camera.geometry import (
 from frontdiag.camera.matching import match
 from frontdiag.camera.photometric import photometric
 from frontdiag.metrics import DEFAULT_FEATURE_BUDGET, keypoint_fill
-from frontdiag.records import CameraFrame, Intrinsics
+from frontdiag.records import (
+    KP_INLIER,
+    KP_OUTLIER,
+    KP_TRACKED,
+    KP_UNTRACKED,
+    CameraAnnotation,
+    CameraFrame,
+    Intrinsics,
+)
 from frontdiag.timing import Clock, StageTimer
 
 NAN = float("nan")
@@ -149,6 +163,11 @@ class CameraFrontend:
         self._he_min_px = 2 * homography_threshold_px(params.sigma_px)
         self._two_interval_sel: np.ndarray | None = None
         self._updates: list[tuple[int, dict[str, Any]]] = []
+        self._grid = np.zeros((0, 0), np.int64)
+        self._state: np.ndarray | None = None
+        self._flow: tuple[int, np.ndarray, np.ndarray] | None = None
+        self.last_annotation: CameraAnnotation | None = None
+        """What the last ``process`` call computed, for drawing (see CameraAnnotation)."""
 
     def reset(self) -> None:
         self._close_interval()
@@ -198,7 +217,10 @@ class CameraFrontend:
             gray = np.zeros((0, 0), np.uint8) if gray.size == 0 else gray.astype(np.uint8)
         feats = self._extractor.detect_and_compute(gray) if gray.ndim == 2 else Features.empty()
         h, w = gray.shape[:2] if gray.ndim >= 2 else (0, 0)
-        ent, occ = spatial_entropy(feats.xy, w, h)
+        counts = grid_counts(feats.xy, w, h)
+        ent = entropy_from_counts(counts) if len(feats) else NAN
+        occ = int(np.count_nonzero(counts))
+        self._grid = counts
         fill = float(keypoint_fill(len(feats), w, h, self.params.n_features))
         row.update(n_keypoints=len(feats), n_weak_keypoints=feats.n_weak, entropy_norm=ent,
                    occupied_cells=occ, keypoint_fill=fill)
@@ -249,6 +271,7 @@ class CameraFrontend:
         p_cur = cur.und[sel]
         tv = two_view(p_ref, p_cur, self._K, sigma_px=p.sigma_px,
                       confidence=p.ransac_confidence, max_iters=p.ransac_max_iters, seed=p.seed)
+        self._note_correspondences(cur, kf, sel, tv.inlier_mask)
         row.update(inliers_h=tv.inliers_h)
         if tv.inlier_mask is not None and tv.inlier_mask.any():
             h, w = cur.gray.shape[:2]
@@ -278,6 +301,31 @@ class CameraFrontend:
             row["t_dir_change_deg"] = math.degrees(math.acos(c))
         kf.last_t = tv.t_dir
         return False
+
+    def _note_correspondences(self, cur: _View, kf: _Keyframe, sel: np.ndarray,
+                              inliers: np.ndarray | None) -> None:
+        """Keep which keypoints the geometry stage read and the inliers' flow from the
+        reference, for drawing (``last_annotation``); indexing only, nothing is recomputed."""
+        state = np.full(len(cur.feats), KP_UNTRACKED, np.uint8)
+        if inliers is None or len(inliers) != len(sel):
+            state[sel] = KP_TRACKED
+            used = sel[:0]
+        else:
+            state[sel] = np.where(inliers, KP_INLIER, KP_OUTLIER)
+            used = sel[inliers]
+        self._state = state
+        self._flow = (kf.view.index, kf.view.feats.xy[cur.kf_idx[used]], cur.feats.xy[used])
+
+    def _annotation(self, cur: _View) -> CameraAnnotation:
+        h, w = cur.gray.shape[:2] if cur.gray.ndim == 2 else (0, 0)
+        n = len(cur.feats)
+        state = self._state if self._state is not None and len(self._state) == n \
+            else np.full(n, KP_UNTRACKED, np.uint8)
+        empty = np.zeros((0, 2), np.float32)
+        ref, f_ref, f_cur = self._flow if self._flow is not None else (-1, empty, empty)
+        return CameraAnnotation(int(w), int(h), np.asarray(cur.feats.xy, np.float32).reshape(-1, 2),
+                                state, self._grid, int(ref), np.asarray(f_ref, np.float32),
+                                np.asarray(f_cur, np.float32))
 
     def _deg_to_px(self, deg: float) -> float:
         assert self._K is not None
@@ -355,6 +403,7 @@ class CameraFrontend:
         """One metrics row for ``frame``; never raises on a frame with nothing to match."""
         timer = StageTimer(self._clock)
         row = _row_template()
+        self._state = self._flow = None
         with timer("detect"):
             cur = self._detect(frame, row)
         prev, kf = self._prev, self._kf
@@ -378,6 +427,7 @@ class CameraFrontend:
             if len(cur.feats) < 2:
                 row["status"] = "no_features"
             reason = self._keyframe_reason(lost, kf, row)
+        self.last_annotation = self._annotation(cur)
         if reason:
             self._close_interval()
             # the new reference keeps its tracks into the old one, unless they were lost

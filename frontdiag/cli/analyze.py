@@ -56,7 +56,7 @@ def analyze_cmd(
                                       show_default=False),
     out: Path | None = typer.Option(None, "--out", "-o",
                                     help="Result directory: frames.parquet, manifest.json, "
-                                         "episodes.parquet (and frames.csv)."),
+                                         "episodes.parquet, diagnostics.mcap (and frames.csv)."),
     fmt: str = typer.Option("parquet", "--format", metavar="[parquet|csv]",
                             help="parquet (always written) or csv (adds frames.csv)."),
     camera_topic: str | None = typer.Option(None, "--camera-topic",
@@ -196,7 +196,19 @@ def analyze_cmd(
 
         limits = parse_max_fraction(max_fraction)
     err = make_console(stderr=True)
-    result = _run_with_progress(log, opts, err, show=not quiet and not as_json)
+    diag = None
+    if out_dir is not None:
+        from frontdiag.report.mcap_ import DIAGNOSTICS_FILE, DiagnosticsWriter
+
+        diag = DiagnosticsWriter(out_dir / DIAGNOSTICS_FILE)
+        diag.open()
+    try:
+        result = _run_with_progress(log, opts, err, show=not quiet and not as_json, sink=diag)
+    except BaseException:
+        if diag is not None:  # nothing analysed: no half-written file left behind
+            diag.close()
+            diag.path.unlink(missing_ok=True)
+        raise
     gate_result = None
     if result.verdicts is not None:
         from frontdiag.verdicts import gate
@@ -215,6 +227,13 @@ def analyze_cmd(
 
             written.append(write_episodes(out_dir, result.verdicts))
             written.append(write_rules_snapshot(out_dir, result.ruleset))
+    if diag is not None:
+        diag.finish(result.table, result.verdicts, result.ruleset)
+        written.append(diag.path)
+        if jobs > 1 and not quiet and not as_json:
+            err.print("[yellow]note[/]: diagnostics.mcap has the per-frame diagnostics and "
+                      "episodes; the image annotations and LiDAR points are written by a "
+                      "single-process run (--jobs 1)")
     if junit is not None and gate_result is not None:
         from frontdiag.report import write_junit
 
@@ -279,7 +298,7 @@ def _split(values: list[str] | None) -> list[str] | None:
     return [v.strip() for item in values for v in item.split(",") if v.strip()]
 
 
-def _run_with_progress(log: Path, opts: Any, err: Any, show: bool) -> Any:
+def _run_with_progress(log: Path, opts: Any, err: Any, show: bool, sink: Any = None) -> Any:
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,
@@ -292,7 +311,7 @@ def _run_with_progress(log: Path, opts: Any, err: Any, show: bool) -> Any:
     from frontdiag.api import run_analysis
 
     if not show:
-        return run_analysis(log, opts)
+        return run_analysis(log, opts, sink=sink)
     with Progress(TextColumn("[bold]analyze[/] {task.description}"), BarColumn(),
                   MofNCompleteColumn(), TextColumn("frames"), TimeElapsedColumn(),
                   TimeRemainingColumn(), console=err, transient=True) as bar:
@@ -301,7 +320,7 @@ def _run_with_progress(log: Path, opts: Any, err: Any, show: bool) -> Any:
         def progress(done: int, expected: int | None) -> None:
             bar.update(task, completed=done, total=expected)
 
-        return run_analysis(log, opts, progress=progress)
+        return run_analysis(log, opts, progress=progress, sink=sink)
 
 
 def _json_summary(result: Any, gate_result: Any, written: list[Path]) -> str:

@@ -65,8 +65,10 @@ def decode_camera(rec: Recording, raw: RawMessage, stream: StampSink,
         stream.skip(DecodeError(raw.topic, "message", f"undecodable ({exc})"))
         return None
     ms = (time.perf_counter() - t0) * 1e3
+    header = getattr(msg, "header", None)
     return CameraFrame(index=stream.index, t_ns=t_ns, log_ns=raw.log_ns, topic=raw.topic,
-                       gray=gray, encoding=encoding, ms_decode=ms)
+                       gray=gray, encoding=encoding, ms_decode=ms,
+                       frame_id=str(getattr(header, "frame_id", "") or ""))
 
 
 def decode_lidar(rec: Recording, raw: RawMessage, stream: StampSink) -> LidarScan | None:

@@ -28,7 +28,7 @@ from frontdiag.lidar.deskew import deskew, sweep_displacement
 from frontdiag.lidar.localmap import LocalMap
 from frontdiag.lidar.se3 import interpolate_pose, inv, se3_exp, se3_log
 from frontdiag.lidar.spectrum import full_vector, spectrum, weak_axis
-from frontdiag.records import LidarScan
+from frontdiag.records import LidarScan, ScanAnnotation
 from frontdiag.timing import Clock, StageTimer
 
 NAN = float("nan")
@@ -79,6 +79,8 @@ class LidarFrontend:
         self.params = params if params is not None else LidarParams()
         self._clock = clock
         self._backend = make_backend(self.params.backend, self.params.num_threads)
+        self.last_annotation: ScanAnnotation | None = None
+        """The points the last ``process`` call used and its weakest direction, for drawing."""
         self._map: LocalMap | None = None
         # (mid-sweep time in ns, map <- sensor); the last two are kept
         self._poses: list[tuple[int, np.ndarray]] = []
@@ -165,6 +167,7 @@ class LidarFrontend:
     # -- one scan ----------------------------------------------------------------------------
     def process(self, scan: LidarScan) -> dict[str, Any]:
         timer = StageTimer(self._clock)
+        self.last_annotation = None
         row: dict[str, Any] = {
             "n_points": len(scan.xyz), "n_points_used": 0, "deskew_m": NAN,
             "icp_fitness": NAN, "icp_rmse_m": NAN, "icp_iters": 0, "lidar_eig_min": NAN,
@@ -221,6 +224,7 @@ class LidarFrontend:
             elif times is not None and not self._poses:
                 row["deskew_m"] = 0.0  # first scan: no motion known yet, nothing applied
         row["n_points_used"] = len(down)
+        self.last_annotation = ScanAnnotation(down, None, "", planar)
         if len(down) < (p.min_points_planar if planar else p.min_points):
             return "too_few_points"
         reg_pts = _extrude(down, voxel) if planar else down
@@ -244,7 +248,11 @@ class LidarFrontend:
             T = _project_planar(res.T) if planar else res.T
             row["icp_iters"] = res.iterations
             row["icp_fitness"] = res.fitness
-            row.update(score_alignment(self._map, down, T, tau, planar))
+            scores = score_alignment(self._map, down, T, tau, planar)
+            weak = scores.pop(WEAK_VEC_KEY, None)
+            row.update(scores)
+            self.last_annotation = ScanAnnotation(down, weak, str(row["lidar_weak_dir"]),
+                                                  planar)
         if row["icp_fitness"] < p.min_fitness:
             self._push_pose(t_ref, init)
             return "low_overlap"
@@ -303,6 +311,10 @@ class LidarFrontend:
             del self._odom_T[:keep_from]
 
 
+WEAK_VEC_KEY = "weak_vec"
+"""score_alignment's key for the weakest eigenvector (rotation..., translation...), not a column."""
+
+
 def score_alignment(lmap: LocalMap, down: np.ndarray, T: np.ndarray, tau: float,
                     planar: bool = False) -> dict[str, Any]:
     """RMSE and the spectrum of a registration, from the correspondences at the solution ``T``
@@ -333,6 +345,7 @@ def score_alignment(lmap: LocalMap, down: np.ndarray, T: np.ndarray, tau: float,
             out["lidar_weak_dir"] = spec.weak_dir
             out["lidar_weak_axis"] = weak_axis(spec.weak_vec, planar)
             out["lidar_weak_vec"] = [round(float(x), 4) for x in full_vector(spec.weak_vec, planar)]
+            out[WEAK_VEC_KEY] = spec.weak_vec
     return out
 
 

@@ -1,0 +1,382 @@
+"""``diagnostics.mcap``: the analysis on the recording's own clock, for Foxglove / Lichtblick.
+
+Every message is logged at the log time of the recording message it describes and stamped with
+that message's header stamp, so opening this file together with the recording lines everything
+up (an image and its annotations share the stamp, which is how the Image panel pairs them).
+ROS 2 (``cdr``) encoding with ``ros2msg`` schemas, written with the ``mcap`` package and
+serialised by rosbags' typestore:
+
+==================================  =====================================  =====================
+topic                               type                                   written
+==================================  =====================================  =====================
+``/diagnostics``                    diagnostic_msgs/msg/DiagnosticArray    per analysed row
+``/frontdiag/camera/metrics``       frontdiag_msgs/msg/CameraMetrics       per camera row
+``/frontdiag/lidar/metrics``        frontdiag_msgs/msg/LidarMetrics        per LiDAR row
+``/frontdiag/camera/annotations``   foxglove_msgs/msg/ImageAnnotations     per camera frame
+``/frontdiag/lidar/used_points``    sensor_msgs/msg/PointCloud2            per LiDAR scan
+``/frontdiag/lidar/weak_direction`` visualization_msgs/msg/MarkerArray     per registered scan
+``/rosout``                         rcl_interfaces/msg/Log                 per episode
+==================================  =====================================  =====================
+
+The metrics messages carry every numeric column of the table for the sensor as a float64 field
+(so a Plot panel draws ``/frontdiag/camera/metrics.entropy_norm``), the verdict, the rules that
+fired, and a ``thresholds`` sub-message with each rule threshold as a constant field
+(``.thresholds.fd_cam_001_entropy_norm``), which draws as a line beside the metric.
+
+Annotations and points stream out as the frontend produces them (memory stays flat); the
+per-row diagnostics follow once the rules have read the whole table (verdicts need neighbours).
+MCAP does not require messages in time order; readers order them by the index.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import re
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from frontdiag.metrics import METRICS
+from frontdiag.records import (
+    KP_INLIER,
+    KP_OUTLIER,
+    KP_TRACKED,
+    KP_UNTRACKED,
+    CameraAnnotation,
+    CameraFrame,
+    LidarScan,
+    ScanAnnotation,
+)
+
+log = logging.getLogger(__name__)
+
+DIAGNOSTICS_FILE = "diagnostics.mcap"
+
+TOPIC_DIAGNOSTICS = "/diagnostics"
+TOPIC_METRICS = "/frontdiag/{sensor}/metrics"
+TOPIC_ANNOTATIONS = "/frontdiag/camera/annotations"
+TOPIC_USED_POINTS = "/frontdiag/lidar/used_points"
+TOPIC_WEAK_DIR = "/frontdiag/lidar/weak_direction"
+TOPIC_LOG = "/rosout"
+
+T_ANNOTATIONS = "foxglove_msgs/msg/ImageAnnotations"
+T_DIAG = "diagnostic_msgs/msg/DiagnosticArray"
+T_CLOUD = "sensor_msgs/msg/PointCloud2"
+T_MARKERS = "visualization_msgs/msg/MarkerArray"
+T_LOG = "rcl_interfaces/msg/Log"
+
+# Foxglove's ROS 2 image-annotation messages (foxglove_msgs), declared here so no ROS install
+# is needed; field for field the published foxglove_msgs definitions.
+_FOXGLOVE_MSGS = {
+    "foxglove_msgs/msg/Point2": "float64 x\nfloat64 y\n",
+    "foxglove_msgs/msg/Color": "float64 r\nfloat64 g\nfloat64 b\nfloat64 a\n",
+    "foxglove_msgs/msg/CircleAnnotation":
+        "builtin_interfaces/Time timestamp\nfoxglove_msgs/Point2 position\nfloat64 diameter\n"
+        "float64 thickness\nfoxglove_msgs/Color fill_color\nfoxglove_msgs/Color outline_color\n",
+    "foxglove_msgs/msg/PointsAnnotation":
+        "builtin_interfaces/Time timestamp\nuint8 UNKNOWN=0\nuint8 POINTS=1\nuint8 LINE_LOOP=2\n"
+        "uint8 LINE_STRIP=3\nuint8 LINE_LIST=4\nuint8 type\nfoxglove_msgs/Point2[] points\n"
+        "foxglove_msgs/Color outline_color\nfoxglove_msgs/Color[] outline_colors\n"
+        "foxglove_msgs/Color fill_color\nfloat64 thickness\n",
+    "foxglove_msgs/msg/TextAnnotation":
+        "builtin_interfaces/Time timestamp\nfoxglove_msgs/Point2 position\nstring text\n"
+        "float64 font_size\nfoxglove_msgs/Color text_color\nfoxglove_msgs/Color background_color\n",
+    "foxglove_msgs/msg/ImageAnnotations":
+        "foxglove_msgs/CircleAnnotation[] circles\nfoxglove_msgs/PointsAnnotation[] points\n"
+        "foxglove_msgs/TextAnnotation[] texts\n",
+}
+
+# colours shared with the PNG renderer (RGBA 0-1): inliers green, outliers red
+COLORS: dict[str, tuple[float, float, float, float]] = {
+    "inlier": (0.10, 0.85, 0.25, 1.0),
+    "outlier": (0.95, 0.20, 0.15, 1.0),
+    "tracked": (1.0, 0.80, 0.10, 1.0),
+    "untracked": (0.35, 0.65, 1.0, 0.8),
+    "grid": (1.0, 1.0, 1.0, 0.45),
+    "flow": (0.10, 0.85, 0.25, 0.8),
+    "text": (1.0, 1.0, 1.0, 1.0),
+    "text_bg": (0.0, 0.0, 0.0, 0.55),
+}
+KP_CLASSES = ((KP_INLIER, "inlier"), (KP_OUTLIER, "outlier"), (KP_TRACKED, "tracked"),
+              (KP_UNTRACKED, "untracked"))
+
+LEVEL = {"ok": 0, "warn": 1, "fail": 2}
+LOG_LEVEL = {"warn": 30, "fail": 40}
+MAX_USED_POINTS = 8192
+"""Used points written per scan at most (every k-th in order): the cloud is there to see which
+structure the registration had, and 20k points x 1200 scans would make the file larger than the
+recording's LiDAR stream."""
+
+
+def _stamp(t_ns: int) -> dict[str, int]:
+    return {"sec": int(t_ns // 1_000_000_000), "nanosec": int(t_ns % 1_000_000_000)}
+
+
+def _field(name: str) -> str:
+    s = re.sub(r"[^a-z0-9]+", "_", name.lower()).strip("_")
+    return s if s and s[0].isalpha() else f"m_{s}"
+
+
+def _fmt(v: float) -> str:
+    return "nan" if not math.isfinite(v) else f"{v:.6g}"
+
+
+class DiagnosticsWriter:
+    """Streams frames in (``__call__`` is an ``api.FrameSink``), then ``finish(result)``.
+
+    >>> with DiagnosticsWriter(out / "diagnostics.mcap") as w:   # doctest: +SKIP
+    ...     result = run_analysis(log, opts, sink=w)
+    ...     w.finish(result.table, result.verdicts, result.ruleset)
+    """
+
+    def __init__(self, path: Path | str) -> None:
+        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+        self.path = Path(path)
+        self.ts = get_typestore(Stores.ROS2_HUMBLE)
+        for name, text in _FOXGLOVE_MSGS.items():
+            self.ts.register(get_types_from_msg(text, name))
+        self._rec: Any = None
+        self._log_ns: dict[tuple[str, int], int] = {}
+        self._frame_ids: dict[str, str] = {}
+        self.counts: dict[str, int] = {}
+        self._color_cache: dict[str, Any] = {}
+
+    # -- file --------------------------------------------------------------------------------
+    def __enter__(self) -> DiagnosticsWriter:
+        self.open()
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+    def open(self) -> None:
+        from frontdiag.io.writer import RecordingWriter
+
+        self._rec = RecordingWriter(self.path, "mcap")
+        self._rec.ts = self.ts  # with the foxglove_msgs and frontdiag_msgs types
+        self._rec.open()
+
+    def close(self) -> None:
+        if self._rec is not None:
+            self._rec.close()
+            self._rec = None
+
+    def _write(self, topic: str, msgtype: str, msg: Any, log_ns: int) -> None:
+        self._rec.write(topic, msgtype, msg, log_ns)
+        self.counts[topic] = self.counts.get(topic, 0) + 1
+
+    def _msg(self, msgtype: str, values: dict[str, Any]) -> Any:
+        from frontdiag.io.writer import build_message
+
+        return build_message(self.ts, msgtype, values)
+
+    # -- streaming: one call per analysed frame ------------------------------------------------
+    def __call__(self, row: dict[str, Any], annotation: Any,
+                 record: CameraFrame | LidarScan) -> None:
+        self._log_ns[(record.topic, int(record.index))] = int(record.log_ns)
+        if record.frame_id:
+            self._frame_ids.setdefault(record.topic, record.frame_id)
+        if isinstance(annotation, CameraAnnotation):
+            self._write(TOPIC_ANNOTATIONS, T_ANNOTATIONS,
+                        self.image_annotations(annotation, record.t_ns), record.log_ns)
+        elif isinstance(annotation, ScanAnnotation) and isinstance(record, LidarScan):
+            frame_id = record.frame_id or "lidar"
+            self._write(TOPIC_USED_POINTS, T_CLOUD,
+                        self._cloud(annotation.points, record.t_ns, frame_id), record.log_ns)
+            if annotation.weak_vec is not None:
+                self._write(TOPIC_WEAK_DIR, T_MARKERS,
+                            self._weak_markers(annotation, record.t_ns, frame_id), record.log_ns)
+
+    def _color(self, name: str) -> Any:
+        if name not in self._color_cache:
+            r, g, b, a = COLORS[name]
+            self._color_cache[name] = self.ts.types["foxglove_msgs/msg/Color"](r, g, b, a)
+        return self._color_cache[name]
+
+    def image_annotations(self, ann: CameraAnnotation, t_ns: int) -> Any:
+        """Keypoints by state, the 8x6 grid with its counts, the inliers' flow from the
+        reference keyframe."""
+        T = self.ts.types
+        P2, Pts, Txt = (T["foxglove_msgs/msg/Point2"], T["foxglove_msgs/msg/PointsAnnotation"],
+                        T["foxglove_msgs/msg/TextAnnotation"])
+        Time = T["builtin_interfaces/msg/Time"]
+        stamp = Time(**_stamp(t_ns))
+        clear = self._color("text_bg")
+        points = []
+        rows, cols = ann.grid_counts.shape if ann.grid_counts.ndim == 2 else (0, 0)
+        w, h = float(ann.width), float(ann.height)
+        if rows and cols and w and h:
+            seg = []
+            for i in range(1, cols):
+                x = w * i / cols
+                seg += [P2(x, 0.0), P2(x, h)]
+            for j in range(1, rows):
+                y = h * j / rows
+                seg += [P2(0.0, y), P2(w, y)]
+            points.append(Pts(stamp, 4, seg,
+                              self._color("grid"), [], clear, 1.0))
+        if len(ann.flow_cur):
+            seg = []
+            for (x0, y0), (x1, y1) in zip(ann.flow_ref.tolist(), ann.flow_cur.tolist(),
+                                          strict=True):
+                seg += [P2(x0, y0), P2(x1, y1)]
+            points.append(Pts(stamp, 4, seg, self._color("flow"), [], clear, 1.0))
+        for state, name in KP_CLASSES:
+            sel = ann.xy[ann.state == state]
+            if len(sel):
+                points.append(Pts(stamp, 1, [P2(x, y) for x, y in sel.tolist()],
+                                  self._color(name), [], self._color(name), 4.0))
+        texts = []
+        if rows and cols and w and h:
+            size = max(10.0, min(w / cols, h / rows) / 4)
+            for j in range(rows):
+                for i in range(cols):
+                    texts.append(Txt(stamp, P2(w * i / cols + 3, h * j / rows + size + 2),
+                                     str(int(ann.grid_counts[j, i])), size,
+                                     self._color("text"), self._color("text_bg")))
+        return T["foxglove_msgs/msg/ImageAnnotations"]([], points, texts)
+
+    def _cloud(self, pts: np.ndarray, t_ns: int, frame_id: str) -> Any:
+        pts = np.asarray(pts, np.float32).reshape(-1, 3)
+        if len(pts) > MAX_USED_POINTS:
+            pts = pts[:: -(-len(pts) // MAX_USED_POINTS)]
+        fields = [{"name": n, "offset": 4 * i, "datatype": 7, "count": 1}
+                  for i, n in enumerate("xyz")]
+        return self._msg(T_CLOUD, {
+            "header": {"stamp": _stamp(t_ns), "frame_id": frame_id}, "height": 1,
+            "width": len(pts), "fields": fields, "is_bigendian": False, "point_step": 12,
+            "row_step": 12 * len(pts), "data": np.frombuffer(pts.tobytes(), np.uint8),
+            "is_dense": True})
+
+    def _weak_markers(self, ann: ScanAnnotation, t_ns: int, frame_id: str) -> Any:
+        """An arrow along the weakest translation (or the axis of the weakest rotation), 3 m
+        long from the sensor, and the words."""
+        v = np.asarray(ann.weak_vec, dtype=np.float64)
+        nrot = 1 if ann.planar else 3
+        rot, trans = v[:nrot], v[nrot:]
+        if ann.planar:
+            rot = np.array([0.0, 0.0, rot[0]])
+            trans = np.array([trans[0], trans[1], 0.0])
+        d = trans if trans @ trans >= rot @ rot else rot
+        d = d / (np.linalg.norm(d) or 1.0) * 3.0
+        header = {"stamp": _stamp(t_ns), "frame_id": frame_id}
+        color = {"r": 1.0, "g": 0.3, "b": 0.1, "a": 1.0}
+        arrow = {"header": header, "ns": "weak_direction", "id": 0, "type": 0, "action": 0,
+                 "pose": {"orientation": {"w": 1.0}},
+                 "scale": {"x": 0.08, "y": 0.2, "z": 0.3}, "color": color,
+                 "points": [{"x": 0.0, "y": 0.0, "z": 0.0},
+                            {"x": float(d[0]), "y": float(d[1]), "z": float(d[2])}],
+                 "frame_locked": True}
+        text = {"header": header, "ns": "weak_direction", "id": 1, "type": 9, "action": 0,
+                "pose": {"position": {"x": float(d[0]), "y": float(d[1]),
+                                      "z": float(d[2]) + 0.5}, "orientation": {"w": 1.0}},
+                "scale": {"z": 0.4}, "color": color, "text": f"weakest: {ann.weak_dir}",
+                "frame_locked": True}
+        return self._msg(T_MARKERS, {"markers": [arrow, text]})
+
+    # -- after the rules: per-row diagnostics and metrics, per-episode log ----------------------
+    def log_ns(self, topic: str, frame: int, t_ns: int) -> int:
+        """The recording's log time of an analysed row (its stamp if it was not streamed)."""
+        return self._log_ns.get((topic, int(frame)), int(t_ns))
+
+    def finish(self, table: pd.DataFrame, verdicts: Any = None, ruleset: Any = None) -> None:
+        """Write the per-row messages and the episode log, then close the file."""
+        from frontdiag.report.thresholds import rule_thresholds
+
+        thresholds = rule_thresholds(ruleset) if ruleset is not None else []
+        sensors = [s for s in ("camera", "lidar")
+                   if "sensor" in table.columns and (table["sensor"] == s).any()]
+        for sensor in sensors:
+            rows = table[table["sensor"] == sensor]
+            self._write_rows(sensor, rows, [t for t in thresholds if t.sensor == sensor])
+        if verdicts is not None and not verdicts.episodes.empty:
+            self._write_episodes(verdicts.episodes)
+        self.close()
+
+    def _metric_columns(self, rows: pd.DataFrame, sensor: str) -> list[str]:
+        skip = {"frame", "t_ns"}
+        cols = []
+        for name, m in METRICS.items():
+            if name in skip or m.sensor not in (sensor, "any") or name not in rows.columns:
+                continue
+            if pd.api.types.is_numeric_dtype(rows[name]) and not pd.api.types.is_bool_dtype(
+                    rows[name]):
+                cols.append(name)
+        return cols
+
+    def _register_metrics_type(self, sensor: str, cols: list[str],
+                               thr_fields: list[str]) -> str:
+        from rosbags.typesys import get_types_from_msg
+
+        cap = sensor.capitalize()
+        tname = f"frontdiag_msgs/msg/{cap}Thresholds"
+        mname = f"frontdiag_msgs/msg/{cap}Metrics"
+        thr = "".join(f"float64 {f}\n" for f in thr_fields) or "uint8 none\n"
+        body = ("std_msgs/Header header\nint64 frame\nstring topic\nuint8 level\nstring verdict\n"
+                "string[] rules\nstring[] conditions\nstring status\n"
+                + "".join(f"float64 {_field(c)}\n" for c in cols)
+                + f"frontdiag_msgs/{cap}Thresholds thresholds\n")
+        if mname not in self.ts.types:
+            self.ts.register(get_types_from_msg(thr, tname))
+            self.ts.register(get_types_from_msg(body, mname))
+        return mname
+
+    def _write_rows(self, sensor: str, rows: pd.DataFrame, thresholds: list[Any]) -> None:
+        cols = self._metric_columns(rows, sensor)
+        names: dict[str, float] = {}
+        for t in thresholds:
+            f = t.field
+            k = 2
+            while f in names:
+                f, k = f"{t.field}_{k}", k + 1
+            names[f] = t.value
+        mtype = self._register_metrics_type(sensor, cols, list(names))
+        thr_msg = self._msg(mtype.replace("Metrics", "Thresholds"), names)
+        topic_metrics = TOPIC_METRICS.format(sensor=sensor)
+        values = {c: rows[c].to_numpy(dtype=np.float64, na_value=np.nan) for c in cols}
+        t_ns = rows["t_ns"].to_numpy(dtype=np.int64)
+        frames = rows["frame"].to_numpy(dtype=np.int64)
+        topics = rows["topic"].astype(str).to_numpy()
+        verdict = rows["verdict"].astype(str).to_numpy() if "verdict" in rows.columns else None
+        fired = rows["rules"].to_numpy() if "rules" in rows.columns else None
+        conds = rows["conditions"].to_numpy() if "conditions" in rows.columns else None
+        status = rows["status"].astype(str).to_numpy() if "status" in rows.columns else None
+        units = {c: METRICS[c].unit for c in cols}
+        for i in range(len(rows)):
+            stamp = int(t_ns[i])
+            log_ns = self.log_ns(topics[i], int(frames[i]), stamp)
+            v = verdict[i] if verdict is not None else "ok"
+            rules = [str(r) for r in (fired[i] if fired is not None else [])]
+            cnd = [str(c) for c in (conds[i] if conds is not None else [])]
+            header = {"stamp": _stamp(stamp), "frame_id": self._frame_ids.get(topics[i], "")}
+            metric_values = {_field(c): float(values[c][i]) for c in cols}
+            self._write(topic_metrics, mtype, self._msg(mtype, {
+                "header": header, "frame": int(frames[i]), "topic": topics[i],
+                "level": LEVEL.get(v, 0), "verdict": v, "rules": rules, "conditions": cnd,
+                "status": "" if status is None else status[i], **metric_values,
+                "thresholds": thr_msg}), log_ns)
+            message = v if not rules else f"{v}: {', '.join(rules)} ({', '.join(cnd)})"
+            kv = [{"key": "frame", "value": str(int(frames[i]))},
+                  {"key": "status", "value": "" if status is None else status[i]}]
+            kv += [{"key": c, "value": f"{_fmt(values[c][i])} {units[c]}".strip()}
+                   for c in cols]
+            self._write(TOPIC_DIAGNOSTICS, T_DIAG, self._msg(T_DIAG, {
+                "header": header, "status": [{
+                    "level": LEVEL.get(v, 0), "name": f"frontdiag {sensor} {topics[i]}",
+                    "message": message, "hardware_id": topics[i], "values": kv}]}), log_ns)
+
+    def _write_episodes(self, episodes: pd.DataFrame) -> None:
+        for _, e in episodes.sort_values("start_t_ns", kind="stable").iterrows():
+            start = int(e["start_t_ns"])
+            log_ns = self.log_ns(str(e["topic"]), int(e["start_frame"]), start)
+            text = f"{e['rule']} {e['summary']}"  # condition, severity, span, frames, peaks
+            self._write(TOPIC_LOG, T_LOG, self._msg(T_LOG, {
+                "stamp": _stamp(start), "level": LOG_LEVEL.get(str(e["severity"]), 20),
+                "name": f"frontdiag/{e['condition']}", "msg": text, "file": "", "function": str(e["rule"]),
+                "line": 0}), log_ns)
