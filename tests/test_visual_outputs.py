@@ -1,7 +1,7 @@
 """What a perception engineer looks at: diagnostics.mcap, the HTML report, the annotated frame.
 
-One short simulated recording with a camera and a LiDAR (the loading-dock corridor: textured
-walls for the camera, a degenerate corridor for the LiDAR) is analysed once for the module.
+One short simulated recording with a camera and a LiDAR (a blank aisle with one bank of labels:
+the camera's keypoints cluster, so there are episodes to draw) is analysed once for the module.
 """
 
 from __future__ import annotations
@@ -22,8 +22,8 @@ from frontdiag.report.mcap_ import COLORS, MAX_USED_POINTS
 @pytest.fixture(scope="module")
 def analysed(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     tmp = tmp_path_factory.mktemp("visual")
-    rec = tmp / "corridor.mcap"
-    assert main(["simulate", "dock_corridor", "-o", str(rec), "--seconds", "2.5",
+    rec = tmp / "label_bank.mcap"
+    assert main(["simulate", "label_bank", "-o", str(rec), "--seconds", "2.5",
                  "--size", "320x240", "--lidar", "16x360", "-q"]) == 0
     out = tmp / "result"
     assert main(["analyze", str(rec), "--out", str(out), "--fail-on", "never", "-q"]) == 0
@@ -174,3 +174,97 @@ def test_lidar_used_points_and_weak_direction(analysed: tuple[Path, Path]) -> No
         assert len(cloud.data) == 12 * cloud.width
     words = [m.markers[1].text for t, _, _, m in msgs if t == "/frontdiag/lidar/weak_direction"]
     assert set(w.removeprefix("weakest: ") for w in words) <= set(lids["lidar_weak_dir"])
+
+
+def test_explain_png_draws_the_frame_with_its_annotations(
+        analysed: tuple[Path, Path], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    import cv2
+
+    _, out = analysed
+    table = pd.read_parquet(out / "frames.parquet")
+    cams = table[(table["sensor"] == "camera") & (table["inliers_e"] > 0)]
+    frame = int(cams["frame"].iloc[len(cams) // 2])
+    png = tmp_path / "frame.png"
+    assert main(["explain", str(out), "--frame", str(frame), "--topic",
+                 str(cams["topic"].iloc[0]), "--png", str(png)]) == 0
+    assert "picture:" in capsys.readouterr().out
+    img = cv2.imread(str(png))
+    w = int(cams["width"].iloc[0])
+    assert img is not None and img.shape[1] >= w
+    # the inliers are drawn in their colour (BGR), on top of the frame
+    b, g, r = (int(c * 255) for c in COLORS["inlier"][2::-1])
+    green = np.all(np.abs(img.astype(int) - (b, g, r)) < 8, axis=2)
+    assert green.sum() > 20
+    # a LiDAR row has no picture: one line, exit 2
+    lid = int(table[table["sensor"] == "lidar"]["frame"].iloc[0])
+    topic = str(table[table["sensor"] == "lidar"]["topic"].iloc[0])
+    code = main(["explain", str(out), "--frame", str(lid), "--topic", topic, "--png",
+                 str(tmp_path / "l.png")])
+    assert code == 2 and "LiDAR" in capsys.readouterr().err
+
+
+def test_report_is_one_offline_html_with_every_plot(analysed: tuple[Path, Path],
+                                                    tmp_path: Path) -> None:
+    import re
+
+    _, out = analysed
+    page_path = tmp_path / "report.html"
+    assert main(["report", str(out), "-o", str(page_path), "--baseline", str(out), "-q"]) == 0
+    page = page_path.read_text()
+    # nothing fetched: no external script, stylesheet, font or image outside the inlined
+    # scripts (plotly.js's own text names web addresses; the browser test shows none is fetched)
+    markup = re.sub(r"<script\b.*?</script>", "", page, flags=re.S)
+    assert not re.search(r"""(src|href)\s*=\s*["']?(https?:)?//""", markup)
+    assert "@import" not in markup and "url(" not in markup
+    assert "<script src" not in page and "<link" not in page
+    assert page.index("id='summary'") < page.index("id='metrics'") < page.index("id='episodes'")
+    n_plots = len(re.findall(r'class="plotly-graph-div"', page))
+    assert n_plots >= 4
+    from frontdiag.report.html import MAX_EPISODES
+
+    eps = pd.read_parquet(out / "episodes.parquet").head(MAX_EPISODES)
+    n_cam = int((eps["sensor"] == "camera").sum())
+    assert n_cam > 0
+    assert page.count("data:image/jpeg;base64,") == n_cam  # each camera episode's worst frame
+
+
+CHROMIUM = Path("/usr/bin/chromium")
+
+
+@pytest.mark.skipif(not CHROMIUM.exists(), reason="Debian's chromium is not installed")
+def test_report_renders_in_headless_chromium(analysed: tuple[Path, Path],
+                                             tmp_path: Path) -> None:
+    """No console error, no network request, every plot drawn; a screenshot is kept."""
+    pw = pytest.importorskip("playwright.sync_api")
+    _, out = analysed
+    page_path = tmp_path / "report.html"
+    assert main(["report", str(out), "-o", str(page_path), "-q"]) == 0
+    errors: list[str] = []
+    requests: list[str] = []
+    with pw.sync_playwright() as p:
+        browser = p.chromium.launch(
+            executable_path=str(CHROMIUM), headless=True,
+            args=["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+                  "--disable-background-networking", "--disable-component-update",
+                  "--disable-sync"])
+        try:
+            page = browser.new_page(viewport={"width": 1280, "height": 900})
+            page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+            page.on("pageerror", lambda exc: errors.append(str(exc)))
+            page.on("request", lambda r: requests.append(r.url)
+                    if not r.url.startswith(("file:", "data:", "blob:", "about:")) else None)
+            page.goto(page_path.as_uri(), wait_until="load")
+            n = page.evaluate("JSON.parse(document.getElementById('frontdiag-meta').text).plots")
+            page.wait_for_function(
+                f"document.querySelectorAll('.plotly-graph-div .main-svg').length >= {n}")
+            drawn = page.evaluate("""() => [...document.querySelectorAll('.plotly-graph-div')]
+                .map(d => d.querySelectorAll('.scatterlayer path.js-line, .scatterlayer .point')
+                .length)""")
+            page.screenshot(path=str(tmp_path / "report.png"), full_page=False)
+        finally:
+            browser.close()
+    assert errors == []
+    assert requests == []
+    assert len(drawn) == n >= 4
+    assert all(k > 0 for k in drawn), drawn
+    assert (tmp_path / "report.png").stat().st_size > 10_000

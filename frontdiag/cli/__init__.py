@@ -129,11 +129,12 @@ def _register() -> None:
         explain,
         info,
         loops,
+        report,
         rules,
         simulate,
     )
 
-    for module in (analyze, info, explain, rules, simulate, eval_, budget, loops):
+    for module in (analyze, info, explain, rules, simulate, eval_, budget, loops, report):
         module.register(app)
 
 

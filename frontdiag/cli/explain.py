@@ -275,6 +275,10 @@ def register(app: typer.Typer) -> None:
                                               help="Threshold override file."),
         as_json: bool = typer.Option(False, "--json", help="Machine-readable output on stdout "
                                      "(schema docs/schemas/explain.json)."),
+        png: Path | None = typer.Option(None, "--png", metavar="FILE",
+                                        help="Also draw the frame: keypoints (E inliers, "
+                                        "outliers), 8x6 grid counts, flow to the reference, "
+                                        "verdict."),
     ) -> int:
         """Show one frame: every metric against its thresholds, the rules that fired and the
         look-alikes each value rules out.
@@ -284,8 +288,25 @@ def register(app: typer.Typer) -> None:
           frontdiag analyze run.mcap --out results/ && frontdiag explain results/ --frame 412
 
           frontdiag explain results/ --time 12.5 --topic /lidar/points --json
+
+          frontdiag explain results/ --frame 412 --png frame412.png  # the picture too
         """
+        from rich.markup import escape
+
+        from frontdiag.cli._console import make_console
+        from frontdiag.errors import ConfigError
+
+        if png is not None and not png.parent.is_dir():
+            raise ConfigError(f"--png {png}: folder {png.parent} does not exist")
         data = build_explanation(result_dir, frame, t, topic, rules_dir, overrides)
+        if png is not None:
+            from frontdiag.report.frame_image import explain_png
+
+            for note in explain_png(png, result_dir if result_dir.is_dir() else
+                                    result_dir.parent, data):
+                make_console(stderr=True).print(f"[yellow]note[/]: {escape(note)}")
+            if not as_json:
+                make_console().print(f"picture: {escape(str(png))}")
         if as_json:
             from frontdiag.json_models import ExplainDoc, emit
 

@@ -1,0 +1,105 @@
+"""`frontdiag report RESULT_DIR`: one self-contained HTML page of a result."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from frontdiag.cli import EPILOG
+
+HELP = """Write one self-contained HTML report of an `analyze --out` directory.
+
+The verdict and the gate first, then one plot per metric over time (thresholds drawn, episodes
+shaded), the worst frame of each episode annotated (keypoints, E inliers and outliers, the 8x6
+grid counts, flow to the reference) with its explanation, and the latency budget when a target
+is given. The page makes no network request: open it offline, attach it to a CI job.
+
+Thumbnails re-read their frames from the recording named in manifest.json; without it they show
+the annotations on grey.
+
+Examples:
+
+  frontdiag report results/
+
+  frontdiag report results/ -o run.html --target orin-nano
+
+  frontdiag report new/ --baseline old/ -o regression.html     # overlay an earlier run
+"""
+
+
+def register(app: typer.Typer) -> None:
+    app.command("report", help=HELP, epilog=EPILOG, no_args_is_help=True)(report_cmd)
+
+
+def report_cmd(
+    result_dir: Path = typer.Argument(..., metavar="RESULT_DIR",
+                                      help="The --out directory of `frontdiag analyze`."),
+    output: Path | None = typer.Option(None, "--output", "-o", metavar="FILE",
+                                       help="HTML file to write [default: RESULT_DIR/report.html]."),
+    baseline: Path | None = typer.Option(None, "--baseline", metavar="DIR",
+                                         help="An earlier result of the same recording: drawn "
+                                              "under every plot, and gated for regressions."),
+    target: str | None = typer.Option(None, "--target",
+                                      help="Project the measured stage times onto this target "
+                                           "(see `frontdiag budget --list-targets`)."),
+    fail_on: str = typer.Option("fail", "--fail-on",
+                                help="Gate shown in the report: warn, fail or never."),
+    no_thumbnails: bool = typer.Option(False, "--no-thumbnails",
+                                       help="Skip re-reading the recording for thumbnails."),
+    quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing on success."),
+) -> int:
+    from rich.console import Console
+    from rich.markup import escape
+
+    from frontdiag.errors import EXIT_OK, ConfigError
+
+    if fail_on not in ("warn", "fail", "never"):
+        raise ConfigError(f"--fail-on {fail_on!r}: choose warn, fail or never")
+    for d, flag in ((result_dir, "RESULT_DIR"), (baseline, "--baseline")):
+        if d is not None and not (d / "frames.parquet").is_file():
+            raise ConfigError(f"{flag} {d}: no frames.parquet there",
+                              hint="pass the --out directory of `frontdiag analyze`")
+    out = output if output is not None else result_dir / "report.html"
+    if not out.parent.is_dir():
+        raise ConfigError(f"--output {out}: folder {out.parent} does not exist")
+    if out.is_dir():
+        raise ConfigError(f"--output {out}: is a directory; name the HTML file")
+    try:
+        import plotly  # noqa: F401
+    except ImportError:
+        raise ConfigError("frontdiag report needs plotly",
+                          hint="pip install 'plotly>=5.20'") from None
+    from frontdiag.report.html import ReportInputs, build_html, load_run
+    from frontdiag.verdicts import gate
+
+    err = Console(stderr=True)
+    with err.status("reading the result"):
+        run = load_run(result_dir)
+        base = load_run(baseline, label="baseline") if baseline is not None else None
+        inputs = ReportInputs(run, base, thumbnails=not no_thumbnails)
+        inputs.gate = gate(run.verdicts, fail_on=fail_on,  # type: ignore[arg-type]
+                           baseline=baseline)
+    if target is not None:
+        with err.status(f"projecting the stage times onto {target}"):
+            inputs.budget_grids = _budget_grids(result_dir, target)
+    with err.status("drawing"):
+        page = build_html(inputs)
+    out.write_text(page, encoding="utf-8")
+    if not quiet:
+        Console().print(f"report: {escape(str(out))} ({len(page.encode()) / 1e6:.1f} MB)")
+    return EXIT_OK
+
+
+def _budget_grids(result_dir: Path, target_name: str) -> list[Any]:
+    """The measured projection `frontdiag budget --target T --from DIR` prints, as grids."""
+    from frontdiag.budget import measured, model, render
+    from frontdiag.budget.targets import load_target
+    from frontdiag.cli.budget import _machine
+
+    target = load_target(target_name)
+    machine, note = _machine({"machine": None, "recalibrate": False, "repeats": 3})
+    rep = measured.measured_report(result_dir, model.Workload().validate(), target, machine,
+                                   note)
+    return render.measured_grids(rep)
