@@ -151,7 +151,11 @@ def metric_figure(run: RunData, baseline: RunData | None, sensor: str, topic: st
             if x1 - x0 < 0.05:
                 x0, x1 = x0 - 0.025, x1 + 0.025
             fig.add_vrect(x0=x0, x1=x1, fillcolor=SEVERITY_COLOR.get(str(e["severity"]), "#999"),
-                          opacity=0.13, line_width=0, layer="below")
+                          opacity=0.13, line_width=0, layer="below",
+                          annotation={"text": html.escape(str(e["condition"])),
+                                      "font": {"size": 9, "color": "#777"}, "textangle": -90,
+                                      "yanchor": "top"},
+                          annotation_position="top left")
     fig.update_layout(
         height=230, margin={"l": 60, "r": 20, "t": 34, "b": 34},
         title={"text": f"{metric} <span style='font-size:11px;color:#666'>"
