@@ -196,15 +196,19 @@ def _weak_direction(table: pd.DataFrame, rows: np.ndarray) -> tuple[str, str]:
     ``lidar_weak_axis``) and the most common words for it; empty for camera episodes."""
     if "lidar_weak_axis" not in table.columns or len(rows) == 0:
         return "", ""
-    axes = table["lidar_weak_axis"].iloc[rows].astype(str)
-    axes = axes[(axes != "") & (axes != "nan") & (axes != "None")]
-    if axes.empty:
+    # NA-safe: with pandas' arrow-backed strings astype(str) keeps NA and comparisons give NA
+    axes = table["lidar_weak_axis"].iloc[rows]
+    axes = axes[axes.notna().to_numpy()].astype(str)
+    axes = axes[~axes.isin(["", "nan", "None"]).to_numpy()]
+    counts = axes.value_counts()
+    if counts.empty:
         return "", ""
-    top = str(axes.value_counts().index[0])
-    words = table["lidar_weak_dir"].iloc[rows].astype(str) if "lidar_weak_dir" in table.columns \
-        else pd.Series(dtype=str)
-    words = words[axes.index.intersection(words.index)][axes == top]
-    return top, str(words.value_counts().index[0]) if not words.empty else top
+    top = str(counts.index[0])
+    if "lidar_weak_dir" not in table.columns:
+        return top, top
+    words = table["lidar_weak_dir"].loc[axes.index][(axes == top).to_numpy()]
+    wc = words[words.notna().to_numpy()].astype(str).value_counts()
+    return top, str(wc.index[0]) if not wc.empty else top
 
 
 def _episodes(table: pd.DataFrame, rules: tuple[Rule, ...], hits: dict[str, np.ndarray],
