@@ -50,9 +50,9 @@ def report_cmd(
                                        help="Skip re-reading the recording for thumbnails."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="Print nothing on success."),
 ) -> int:
-    from rich.console import Console
     from rich.markup import escape
 
+    from frontdiag.cli._console import make_console
     from frontdiag.errors import EXIT_OK, ConfigError
 
     if fail_on not in ("warn", "fail", "never"):
@@ -74,7 +74,7 @@ def report_cmd(
     from frontdiag.report.html import ReportInputs, build_html, load_run
     from frontdiag.verdicts import gate
 
-    err = Console(stderr=True)
+    err = make_console(stderr=True)
     with err.status("reading the result"):
         run = load_run(result_dir)
         base = load_run(baseline, label="baseline") if baseline is not None else None
@@ -88,7 +88,7 @@ def report_cmd(
         page = build_html(inputs)
     out.write_text(page, encoding="utf-8")
     if not quiet:
-        Console().print(f"report: {escape(str(out))} ({len(page.encode()) / 1e6:.1f} MB)")
+        make_console().print(f"report: {escape(str(out))} ({len(page.encode()) / 1e6:.1f} MB)")
     return EXIT_OK
 
 
