@@ -70,6 +70,19 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
     _M("n_putative", "count", "camera", "query features with two candidate neighbours", "higher"),
     _M("ratio_reject_rate", "ratio", "camera",
        "share of query features whose best match failed the Lowe ratio test (0.8)", "lower"),
+    _M("ratio_ambiguous_rate", "ratio", "camera",
+       "share of query features refused by the ratio test although their second candidate is "
+       "also a good match (within 50 of 256 bits): two plausible partners, the repetition share "
+       "of ratio_reject_rate", "lower"),
+    _M("ratio_reject_base", "ratio", "camera",
+       "the recording's own ratio_reject_rate: lower quartile of the rows within 5 s either side "
+       "(row itself, rows near an exposure step, matched over > 1/3 s or at/above the 0.70 line "
+       "left out); NaN where fewer than 10 rows or a quarter of the window remain "
+       "(FD-REP-001 baseline_* params)"),
+    _M("ratio_reject_base_sigma", "ratio", "camera",
+       "robust spread of ratio_reject_base: (median - lower quartile) / 0.6745 of the same rows"),
+    _M("n_keypoints_base", "count", "camera",
+       "the recording's own n_keypoints: lower quartile of the rows within 5 s either side"),
     _M("n_matches", "count", "camera", "matches passing the ratio test and mutual consistency", "higher"),
     # --- camera: geometry (against the reference keyframe)
     _M("ref_frame", "", "camera", "frame index of the reference keyframe"),
@@ -94,6 +107,12 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
        "parallax_med_deg as an image displacement, fx * tan(angle): H/E can tell a plane from 3D "
        "structure only when this is well above the 2.45 px homography threshold", "higher"),
     _M("rot_deg", "deg", "camera", "rotation angle recovered against the reference keyframe"),
+    _M("rot_only_px", "px", "camera",
+       "median transfer error of the best rotation-only model x' ~ K R K^-1 x over the essential "
+       "inliers, the focal allowed 0.5-2x the given one: near the localisation noise when the "
+       "camera only turned (or stood still), whatever the accuracy of K", "none"),
+    _M("rot_focal_scale", "ratio", "camera",
+       "focal length, as a multiple of the given one, at which rot_only_px is smallest"),
     _M("ref2_frame", "", "camera",
        "the keyframe before the reference, read when parallax_med_px is under twice the "
        "homography threshold (4.9 px); -1 when not read"),
@@ -114,6 +133,12 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
     _M("photo_residual_med", "grey level", "camera",
        "median |I2 - I1| over 8x8 patches at tracked features; ~4 healthy, 20-25 at a gain step",
        "lower"),
+    _M("photo_residual_base", "grey level", "camera",
+       "the recording's own photo_residual_med: lower quartile of the rows within 5 s either side "
+       "outside exposure steps and their recovery (row itself left out); NaN where fewer than 10 "
+       "rows or a quarter of the window remain (FD-EXP-001 baseline_* params)"),
+    _M("photo_residual_base_sigma", "grey level", "camera",
+       "robust spread of photo_residual_base: (median - lower quartile) / 0.6745 of the same rows"),
     _M("affine_gain", "ratio", "camera", "gain a of r = I2 - (a*I1 + b) fitted at tracked features"),
     _M("affine_bias", "grey level", "camera", "offset b of the affine brightness model"),
     _M("photo_residual_affine_med", "grey level", "camera",
@@ -126,7 +151,8 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
        "lower"),
     _M("ms_photometric", "ms", "camera", "photometric residual and affine fit", "lower"),
     _M("ms_diagnostic", "ms", "camera",
-       "frontdiag's own extra reading (H/E over two keyframe intervals), not a frontend stage; "
+       "frontdiag's own extra readings (H/E over two keyframe intervals, the rotation-only fit), "
+       "not frontend stages; "
        "left out of ms_total", "lower"),
     _M("ms_total", "ms", "any", "all stages of this frame (ms_diagnostic excluded)", "lower"),
     # --- lidar

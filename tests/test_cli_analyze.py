@@ -343,16 +343,20 @@ def test_bad_frontend_settings_are_exit_2(tmp_path: Path, capsys: pytest.Capture
     assert code == 2 and flag in err
 
 
-def test_a_camera_standing_still_passes_the_gate(
+def test_a_camera_standing_still_is_reported_under_pure_rotation(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """Identical frames: H/E = 1 at zero parallax, but nothing turned either (a
-    stationary robot inserts no keyframes and stays safe), so no pure_rotation failure."""
+    """Identical frames: H/E = 1 at zero parallax and nothing turned either. Nothing can be
+    triangulated from them, so the frames read pure_rotation, and explain names the reason."""
     log = write_recording(tmp_path / "still.mcap", "mcap", n=30, shift=0)
     out = tmp_path / "res"
-    code, _, _ = run(["analyze", str(log), "-q", "--out", str(out)], capsys)
+    run(["analyze", str(log), "-q", "--out", str(out)], capsys)
     df = pd.read_parquet(out / "frames.parquet")
     assert (df["h_over_e"].dropna() > 0.9).all() and (df["parallax_med_deg"].dropna() < 0.1).all()
-    assert code == 0 and not any(len(c) for c in df["conditions"])
+    hit = df["conditions"].map(lambda c: "pure_rotation" in c)
+    assert hit.iloc[5:].all()
+    frame = int(df.loc[hit, "frame"].iloc[3])
+    code, stdout, _ = run(["explain", str(out), "--frame", str(frame)], capsys)
+    assert code == 0 and "standing still" in stdout
 
 
 def test_stride_past_a_tracking_rate_is_named_not_read_as_repetition(

@@ -261,13 +261,20 @@ def test_the_two_interval_read_fills_only_short_intervals(ruleset) -> None:
         ["planar_degeneracy"]
 
 
-@pytest.mark.parametrize(("rot", "expected"), [(3.0, ["pure_rotation"]), (0.05, [])])
-def test_a_camera_standing_still_is_not_pure_rotation(ruleset, rot, expected) -> None:
-    """H/E ~1 and no parallax in both cases; only the panning camera turned (a
-    stationary robot inserts no keyframes and stays safe)."""
-    still = {"h_over_e": 0.98, "parallax_med_deg": 0.02, "rot_deg": rot}
-    res = evaluate(frames(20, {range(5, 15): still}), ruleset)
-    assert conds(res, 10) == expected
+@pytest.mark.parametrize(("rot", "still"), [(3.0, False), (0.05, True)])
+def test_standing_still_is_reported_as_pure_rotation_with_its_reason(ruleset, rot, still) -> None:
+    """H/E ~1 and no parallax in both cases: a panning camera and one that neither turns nor
+    moves. Neither has a baseline to triangulate from, so both read pure_rotation; only the one
+    standing still carries the reason "standing still"."""
+    from frontdiag.verdicts.explain import explain_row
+
+    row = {"h_over_e": 0.98, "parallax_med_deg": 0.02, "rot_deg": rot}
+    res = evaluate(frames(20, {range(5, 15): row}), ruleset)
+    assert conds(res, 10) == ["pure_rotation"]
+    rot_rule = next(e for e in explain_row(res, 10) if e.rule.id == "FD-ROT-001")
+    assert rot_rule.fired
+    assert any("standing still" in line for line in rot_rule.check_lines) == still
+    assert "standing still" in rot_rule.rule.title
 
 
 def _keyframe_intervals(he_first: float, he_last: float, n: int = 40) -> pd.DataFrame:

@@ -53,6 +53,7 @@ from frontdiag.camera.geometry import (
     homography_threshold_px,
     ransac_iters_required,
     ransac_iters_run,
+    rotation_only_fit,
     two_view,
     undistort_points,
 )
@@ -131,11 +132,12 @@ def _row_template() -> dict[str, Any]:
     return {
         "n_keypoints": 0, "n_weak_keypoints": 0, "keypoint_fill": NAN, "entropy_norm": NAN,
         "occupied_cells": 0, "entropy_inliers_norm": NAN,
-        "n_putative": 0, "ratio_reject_rate": NAN, "n_matches": 0,
+        "n_putative": 0, "ratio_reject_rate": NAN, "ratio_ambiguous_rate": NAN, "n_matches": 0,
         "ref_frame": -1, "n_ref_matches": 0, "tracked_share": NAN,
         "inliers_e": NAN, "inliers_h": NAN, "h_over_e": NAN, "inlier_ratio": NAN,
         "ransac_iters_required": NAN, "ransac_iters_run": NAN, "parallax_med_deg": NAN,
-        "parallax_med_px": NAN, "rot_deg": NAN, "t_dir_change_deg": NAN, "pose_info_cond": NAN,
+        "parallax_med_px": NAN, "rot_deg": NAN, "rot_only_px": NAN, "rot_focal_scale": NAN,
+        "t_dir_change_deg": NAN, "pose_info_cond": NAN,
         "ref2_frame": -1, "h_over_e_2kf": NAN, "parallax_med_deg_2kf": NAN,
         "parallax_med_px_2kf": NAN,
         "mean_intensity": NAN, "d_mean_intensity": NAN, "photo_residual_med": NAN,
@@ -168,6 +170,7 @@ class CameraFrontend:
         self._flow: tuple[int, np.ndarray, np.ndarray] | None = None
         self.last_annotation: CameraAnnotation | None = None
         """What the last ``process`` call computed, for drawing (see CameraAnnotation)."""
+        self._rot_pts: tuple[np.ndarray, np.ndarray] | None = None
 
     def reset(self) -> None:
         self._close_interval()
@@ -235,7 +238,7 @@ class CameraFrontend:
         p = self.params
         m = match(cur.feats.des, prev.feats.des, p.ratio, p.mutual)
         row.update(n_putative=m.n_putative, ratio_reject_rate=m.ratio_reject_rate,
-                   n_matches=len(m.query))
+                   ratio_ambiguous_rate=m.ratio_ambiguous_rate, n_matches=len(m.query))
         cur.kf_idx[m.query] = prev.kf_idx[m.train]
         if p.relink_tracks and kf.view is not prev and len(kf.view.feats):
             self._relink(cur, kf.view)
@@ -287,6 +290,8 @@ class CameraFrontend:
                                                                p.ransac_confidence),
                    ransac_iters_run=ransac_iters_run(tv.inlier_ratio, p.ransac_max_iters,
                                                      E_SAMPLE, p.ransac_confidence))
+        if tv.inlier_mask is not None and tv.ok_e:
+            self._rot_pts = (p_ref[tv.inlier_mask], p_cur[tv.inlier_mask])
         if tv.parallax_med_deg == tv.parallax_med_deg:
             row["parallax_med_px"] = self._deg_to_px(tv.parallax_med_deg)
             if row["h_over_e"] == row["h_over_e"]:
@@ -417,13 +422,17 @@ class CameraFrontend:
             with timer("photometric"):
                 self._photometric(cur, prev, q, t, row)
             self._two_interval_sel = None
+            self._rot_pts = None
             with timer("geometry"):
                 lost = self._geometry(cur, kf, row)
-            if self._two_interval_sel is not None:
-                # frontdiag's own reading, not a stage of the frontend: timed apart, so the
-                # stage times (and budget projections from them) stay the frontend's
-                with timer("diagnostic"):
+            # frontdiag's own readings, not stages of the frontend: timed apart, so the
+            # stage times (and budget projections from them) stay the frontend's
+            with timer("diagnostic"):
+                if self._two_interval_sel is not None:
                     self._queue_two_intervals(cur, kf, self._two_interval_sel)
+                if self._rot_pts is not None and self._K is not None:
+                    row["rot_only_px"], row["rot_focal_scale"] = rotation_only_fit(
+                        *self._rot_pts, self._K)
             if len(cur.feats) < 2:
                 row["status"] = "no_features"
             reason = self._keyframe_reason(lost, kf, row)

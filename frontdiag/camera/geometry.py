@@ -226,6 +226,85 @@ def decompose(E: np.ndarray, f_ref: np.ndarray, f_cur: np.ndarray
     return R, (t if front >= behind else -t), par
 
 
+# Focal errors a rotation-only model may absorb: an approximate K (a guessed or nominal focal,
+# a zoomed or re-scaled image) is commonly off by tens of percent; a factor of 2 either way
+# covers a wrong guess between a wide and a normal lens without letting the focal grow so large
+# that every motion looks like a small rotation (the residual is measured in pixels at the
+# image's own scale, so a very long focal does not shrink it).
+ROT_FOCAL_RANGE = (0.5, 2.0)
+ROT_FOCAL_STEPS = 13
+ROT_SEARCH_POINTS = 200
+
+
+def _wahba(f_ref: np.ndarray, f_cur: np.ndarray) -> np.ndarray:
+    """The rotation R minimising sum |f_cur - R f_ref|^2 (Kabsch / Wahba, via SVD)."""
+    U, _, Vt = np.linalg.svd(f_cur.T @ f_ref)
+    d = np.sign(np.linalg.det(U @ Vt)) or 1.0
+    return U @ np.diag([1.0, 1.0, d]) @ Vt
+
+
+def _rotation_residual_px(p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray) -> float:
+    """Median transfer error (px) of the best rotation x_cur ~ K R K^-1 x_ref, one re-fit
+    without the points beyond three times the median (mismatches)."""
+    f_ref, f_cur = bearings(p_ref, K), bearings(p_cur, K)
+    R = _wahba(f_ref, f_cur)
+    res = _transfer_px(f_ref, p_cur, R, K)
+    keep = res <= 3.0 * max(float(np.median(res)), 0.5)
+    if keep.sum() >= E_SAMPLE:
+        R = _wahba(f_ref[keep], f_cur[keep])
+        res = _transfer_px(f_ref, p_cur, R, K)
+    return float(np.median(res))
+
+
+def _transfer_px(f_ref: np.ndarray, p_cur: np.ndarray, R: np.ndarray, K: np.ndarray
+                 ) -> np.ndarray:
+    q = f_ref @ R.T @ K.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xy = q[:, :2] / q[:, 2:3]
+    res = np.linalg.norm(xy - p_cur, axis=1)
+    return np.where(q[:, 2] > 0, res, np.inf)
+
+
+def rotation_only_fit(p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray
+                      ) -> tuple[float, float]:
+    """How well a pure rotation explains the correspondences when K may be approximate.
+
+    A camera that only turns maps every point by the homography K R K^-1, whatever the scene's
+    depth (Hartley & Zisserman 2004, sec. 8.4.2): K^-1 H K is then a rotation. With an
+    approximate K the de-rotated bearings keep a residual that grows with the rotation and the
+    focal error, which reads as parallax although there is none. So the rotation is fitted at
+    focal lengths from ROT_FOCAL_RANGE times the given one (principal point kept) and the
+    smallest median transfer error in pixels is returned with the focal scale that gives it.
+    A translating camera leaves a residual that no rotation and focal remove (depth-dependent
+    parallax, or the expansion of an approach); a pure rotation leaves localisation noise.
+    """
+    if len(p_ref) < E_SAMPLE:
+        return float("nan"), float("nan")
+    # the focal is searched on an evenly spaced subset (a median needs no more), coarse then
+    # fine around the best scale; the residual reported is over every correspondence
+    sub = np.linspace(0, len(p_ref) - 1, min(len(p_ref), ROT_SEARCH_POINTS)).astype(np.intp)
+    lo, hi = np.log(ROT_FOCAL_RANGE[0]), np.log(ROT_FOCAL_RANGE[1])
+    grid = np.linspace(lo, hi, ROT_FOCAL_STEPS)
+    step = grid[1] - grid[0]
+    best_log, best = 0.0, float("inf")
+    for candidates in (grid, None):
+        if candidates is None:
+            candidates = np.clip(best_log + np.linspace(-step, step, 5), lo, hi)
+        for g in candidates:
+            r = _rotation_residual_px(p_ref[sub], p_cur[sub], _scaled(K, float(np.exp(g))))
+            if r < best:
+                best, best_log = r, float(g)
+    s_best = float(np.exp(best_log))
+    return _rotation_residual_px(p_ref, p_cur, _scaled(K, s_best)), s_best
+
+
+def _scaled(K: np.ndarray, s: float) -> np.ndarray:
+    Ks = K.copy()
+    Ks[0, 0] *= s
+    Ks[1, 1] *= s
+    return Ks
+
+
 def two_view(p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray | None, *,
              sigma_px: float = 1.0, confidence: float = 0.999, max_iters: int = 1000,
              seed: int = 0, pose_information: bool = True) -> TwoView:

@@ -18,6 +18,10 @@ import numpy as np
 
 N_BITS = 256
 N_BYTES = N_BITS // 8
+# ORB-SLAM's "good match" Hamming distance for ORB (TH_LOW, Mur-Artal et al. 2015): a candidate
+# this close is a plausible partner, so a query refused by the ratio test with its second
+# candidate this close had two plausible partners (ambiguity), not none (an unmatched feature)
+GOOD_MATCH_BITS = 50
 
 _faiss: Any = None
 
@@ -54,10 +58,18 @@ class Matches:
     train: np.ndarray  # (M,) intp
     n_putative: int  # query features that had two candidates (the ratio test applies)
     n_ratio_rejected: int  # of those, how many failed d1 < ratio * d2
+    n_ratio_ambiguous: int = 0  # of the rejected, how many had d2 <= GOOD_MATCH_BITS
 
     @property
     def ratio_reject_rate(self) -> float:
         return self.n_ratio_rejected / self.n_putative if self.n_putative else float("nan")
+
+    @property
+    def ratio_ambiguous_rate(self) -> float:
+        """Share of query features refused with two plausible partners (both candidates within
+        GOOD_MATCH_BITS): repetition's share of the rejection; refusals of features that no
+        candidate resembles (viewpoint change, blur, new view) do not count."""
+        return self.n_ratio_ambiguous / self.n_putative if self.n_putative else float("nan")
 
     @staticmethod
     def none() -> Matches:
@@ -95,4 +107,6 @@ def match(q_des: np.ndarray, t_des: np.ndarray, ratio: float = 0.8,
         if len(first) < len(q):
             first.sort()
             q, t = q[first], t[first]
-    return Matches(q, t, nq, int(nq - np.count_nonzero(passed)))
+    ambiguous = ~passed & (d2 <= GOOD_MATCH_BITS)
+    return Matches(q, t, nq, int(nq - np.count_nonzero(passed)),
+                   int(np.count_nonzero(ambiguous)))

@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from frontdiag.camera.geometry import homography_threshold_px
+from frontdiag.verdicts.baseline import rolling_baseline
 
 Params = Mapping[str, Any]
 
@@ -74,6 +75,9 @@ class Check:
     """Params a rule may leave out (the check then skips what they gate)."""
     unread: Callable[[pd.DataFrame, Params], tuple[np.ndarray, str]] | None = None
     """Rows the check declines to read whatever their values, and why (for a run note)."""
+    baseline: Callable[[pd.DataFrame, Params], pd.DataFrame] | None = None
+    """Columns of the recording's own level (verdicts/baseline.py) that the engine adds to the
+    table, per topic in time order, before any rule reads it."""
 
     def param_problem(self, name: str, value: Any) -> str | None:
         kind = self.params.get(name)
@@ -114,13 +118,72 @@ def _wide_interval(df: pd.DataFrame, p: Params) -> np.ndarray:
         return frame_interval_s(df) > p["max_interval_s"]
 
 
+def _scene_baseline(df: pd.DataFrame, p: Params, metric: str, exclude: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    t = col(df, "t_ns") / 1e9
+    return rolling_baseline(t, col(df, metric), p["baseline_window_s"],
+                            int(p["baseline_min_rows"]), p["baseline_min_share"], exclude)
+
+
+def _matching_baseline(df: pd.DataFrame, p: Params) -> pd.DataFrame:
+    """The scene's own rejection: rows near an exposure step, matched across a wide interval
+    or at/above the absolute line are left out (each is already read as something else)."""
+    if "reject_excess" not in p:
+        return pd.DataFrame(index=range(len(df)))
+    rej = col(df, "ratio_reject_rate")
+    with np.errstate(invalid="ignore"):
+        near = _after_step(col(df, "d_mean_intensity"), p["dmean_step"], p["recovery_frames"])
+        exclude = near | _wide_interval(df, p) | (rej >= p["reject_repetitive"])
+    base, sig = _scene_baseline(df, p, "ratio_reject_rate", exclude)
+    kp_base, _ = _scene_baseline(df, p, "n_keypoints", _wide_interval(df, p))
+    return pd.DataFrame({"ratio_reject_base": base, "ratio_reject_base_sigma": sig,
+                         "n_keypoints_base": kp_base})
+
+
+def reject_excess(rej: np.ndarray, base: np.ndarray) -> np.ndarray:
+    """Share of the matches the scene's own level keeps that this frame refuses:
+    (rejection - baseline) / (1 - baseline); 0 at the scene's level, 1 when all are refused."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return (rej - base) / (1.0 - base)
+
+
+def _relative_repetition(df: pd.DataFrame, p: Params) -> tuple[np.ndarray, np.ndarray]:
+    """(has a baseline, jumps above it) per row: the repetition signature read against the
+    recording's own level, at an unchanged feature count."""
+    rej, base = col(df, "ratio_reject_rate"), col(df, "ratio_reject_base")
+    sig, kp, kp_base = col(df, "ratio_reject_base_sigma"), col(df, "n_keypoints"), \
+        col(df, "n_keypoints_base")
+    has = ~np.isnan(base)
+    with np.errstate(invalid="ignore"):
+        jump = ((reject_excess(rej, base) >= p["reject_excess"])
+                & (rej - base > p["baseline_sigmas"] * sig)
+                & ~(kp < p["keypoints_kept"] * kp_base))
+    return has, jump
+
+
 def _matching_table(df: pd.DataFrame, p: Params) -> np.ndarray:
+    """Features intact, outside an exposure step's recovery and matched at a tracking rate;
+    then the rejection read against the scene's own level where the recording has one (the
+    absolute line where it has none: a recording that is one long aisle)."""
     fill = col(df, "keypoint_fill")
     rej = col(df, "ratio_reject_rate")
     with np.errstate(invalid="ignore"):
         near_step = _after_step(col(df, "d_mean_intensity"), p["dmean_step"], p["recovery_frames"])
-        return ((fill >= p["fill_floor"]) & (rej >= p["reject_repetitive"]) & ~near_step
-                & ~_wide_interval(df, p))
+        readable = (fill >= p["fill_floor"]) & ~near_step & ~_wide_interval(df, p)
+        absolute = rej >= p["reject_repetitive"]
+    if "reject_excess" in p:
+        has, jump = _relative_repetition(df, p)
+        hit = readable & np.where(has, jump, absolute)
+    else:
+        hit = readable & absolute
+    if "ambiguous_repetitive" in p:
+        # twins: refused with a second candidate as good as a match; a wider interval makes
+        # candidates less alike, not more, and a gain step makes them darker or brighter
+        # together, so this reading holds at any frame rate and across a step
+        with np.errstate(invalid="ignore"):
+            twins = col(df, "ratio_ambiguous_rate") >= p["ambiguous_repetitive"]
+            hit |= (fill >= p["fill_floor"]) & twins
+    return hit
 
 
 def _matching_unread(df: pd.DataFrame, p: Params) -> tuple[np.ndarray, str]:
@@ -139,6 +202,31 @@ def _fill_words(kp: float, fill: float) -> str:
     return f"keypoint_fill {_fmt(fill)} ({_fmt(kp)} keypoints)"
 
 
+def _relative_rejection_words(row: Mapping[str, Any], p: Params) -> str:
+    rej, base, sig = (_v(row, m) for m in ("ratio_reject_rate", "ratio_reject_base",
+                                           "ratio_reject_base_sigma"))
+    kp, kp_base = _v(row, "n_keypoints"), _v(row, "n_keypoints_base")
+    if np.isnan(base):
+        return (f"relative: no baseline of the recording's own (fewer than "
+                f"{p['baseline_min_rows']:g} rows, or under {p['baseline_min_share']:.0%} of "
+                f"them, below the absolute line within {p['baseline_window_s']:g} s): the "
+                "absolute line decides")
+    exc = float(reject_excess(np.array([rej]), np.array([base]))[0])
+    above = exc >= p["reject_excess"] and rej - base > p["baseline_sigmas"] * sig
+    kept = not kp < p["keypoints_kept"] * kp_base
+    words = (f"relative (decides): scene baseline {base:.0%} (robust sigma {sig:.1%}, lower "
+             f"quartile of the rows within {p['baseline_window_s']:g} s under the absolute "
+             f"line); this "
+             f"frame refuses {exc:.0%} of what the scene keeps (line {p['reject_excess']:.0%}, "
+             f"and > {p['baseline_sigmas']:g} sigma); keypoints {kp:.0f} vs the scene's "
+             f"{kp_base:.0f}")
+    if above and kept:
+        return words + ": a jump at an unchanged feature count, the repetition signature"
+    if above:
+        return words + ": the jump came with a loss of features, not repetition"
+    return words + ": at the scene's own level, repetitive_structure ruled out"
+
+
 def _matching_table_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     kp, fill, rej = (_v(row, m) for m in ("n_keypoints", "keypoint_fill", "ratio_reject_rate"))
     dm = _v(row, "d_mean_intensity")
@@ -154,11 +242,22 @@ def _matching_table_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     if np.isnan(rej):
         out.append("ratio_reject_rate not computable (no previous frame)")
     elif rej >= p["reject_repetitive"]:
-        out.append(f"ratio_reject_rate {rej:.0%} >= {p['reject_repetitive']:.0%}: the ratio test "
-                   "refuses ambiguous candidates (repetitive ~85%)")
+        out.append(f"absolute: ratio_reject_rate {rej:.0%} >= {p['reject_repetitive']:.0%}: the "
+                   "ratio test refuses ambiguous candidates (repetitive ~85%)")
     else:
-        out.append(f"ratio_reject_rate {rej:.0%} < {p['reject_repetitive']:.0%}: "
-                   "repetitive_structure ruled out (healthy ~30%, exposure step ~55%)")
+        out.append(f"absolute: ratio_reject_rate {rej:.0%} < {p['reject_repetitive']:.0%} "
+                   "(healthy ~30%, exposure step ~55%)")
+    if "reject_excess" in p and not np.isnan(rej):
+        out.append(_relative_rejection_words(row, p))
+    amb = _v(row, "ratio_ambiguous_rate")
+    if "ambiguous_repetitive" in p and not np.isnan(amb):
+        twins = amb >= p["ambiguous_repetitive"]
+        out.append(f"ratio_ambiguous_rate {amb:.0%} {'>=' if twins else '<'} "
+                   f"{p['ambiguous_repetitive']:.0%}: "
+                   + ("features refused with two plausible partners (a twin within 50 bits): "
+                      "repetition, at any frame rate" if twins else
+                      "few features have a twin; the refusals are features nothing resembles "
+                      "(viewpoint change, blur), not repetition"))
     if not np.isnan(dm) and abs(dm) > p["dmean_step"]:
         out.append(f"|d_mean_intensity| {abs(dm):.1f} > {p['dmean_step']:g}: an exposure step; "
                    f"a rejection spike within {p['recovery_frames']:g} frames is the step's")
@@ -172,24 +271,35 @@ def _matching_table_explain(row: Mapping[str, Any], p: Params) -> list[str]:
 
 # --- §5 of docs/derivations.md: exposure step -------------------------------------------------------------------
 
-def _step_at(i: int, res: np.ndarray, rej: np.ndarray, p: Params) -> tuple[bool, int]:
+def _step_at(i: int, res: np.ndarray, rej: np.ndarray, p: Params,
+             base: np.ndarray | None = None, sig: np.ndarray | None = None) -> tuple[bool, int]:
     """Whether row i jumps like an exposure step, and after how many rows it recovers
     (0: not within recovery_frames, -1: the data ends first).
 
     The photometric residual decides where it is computable: the row's residual reaches
     residual_step and at least residual_jump times the row before (a one-frame jump, which blur
     building up over several frames is not); it has recovered once the residual is back below
-    the midpoint of the levels before and at the step. Without a residual the ratio-test
-    rejection stands in (crossing reject_exposure, recovered below it).
+    the midpoint of the levels before and at the step. Where the recording has a level of its
+    own (``base``, ``sig``: photo_residual_base), the row's residual is read against it instead
+    of the absolute residual_step: at least residual_jump times the scene's level and
+    baseline_sigmas of its noise above it. Without a residual the ratio-test rejection stands
+    in (crossing reject_exposure, recovered below it).
     """
     n = len(res)
     window = max(int(p["recovery_frames"]), 1)
     prev = i - 1
     if not np.isnan(res[i]):
         before = res[prev] if prev >= 0 else np.nan
-        jump = res[i] >= p["residual_step"] and (
-            np.isnan(before) or res[i] >= p["residual_jump"] * before)
-        level = max(p["residual_step"], ((0.0 if np.isnan(before) else before) + res[i]) / 2)
+        b = np.nan if base is None or sig is None else base[i]
+        if np.isnan(b):
+            high = res[i] >= p["residual_step"]
+            level = max(p["residual_step"], ((0.0 if np.isnan(before) else before) + res[i]) / 2)
+        else:
+            assert sig is not None
+            high = res[i] >= p["residual_jump"] * b and res[i] - b > p["baseline_sigmas"] * sig[i]
+            level = max(b + p["baseline_sigmas"] * sig[i],
+                        ((b if np.isnan(before) else before) + res[i]) / 2)
+        jump = bool(high) and (np.isnan(before) or res[i] >= p["residual_jump"] * before)
         ahead = res[i + 1:i + 1 + window]
         with np.errstate(invalid="ignore"):
             recovered = ahead < level
@@ -203,10 +313,35 @@ def _step_at(i: int, res: np.ndarray, rej: np.ndarray, p: Params) -> tuple[bool,
     return bool(jump), -1 if i + window >= n else 0
 
 
+def _exposure_baseline(df: pd.DataFrame, p: Params) -> pd.DataFrame:
+    """The scene's own photometric residual, leaving out the rows within an exposure step's
+    recovery window (|d_mean_intensity| > dmean_step and the frames after it)."""
+    if "baseline_window_s" not in p:
+        return pd.DataFrame(index=range(len(df)))
+    near = _after_step(col(df, "d_mean_intensity"), p["dmean_step"], p["recovery_frames"])
+    base, sig = _scene_baseline(df, p, "photo_residual_med", near)
+    return pd.DataFrame({"photo_residual_base": base, "photo_residual_base_sigma": sig})
+
+
+def _dark_step(df: pd.DataFrame, p: Params) -> np.ndarray:
+    """Rows whose frame mean moved far past the step line into or out of a view where detection
+    fails (lights out, lights back on): a brightness step whatever matching does after it."""
+    if "dmean_dark" not in p:
+        return np.zeros(len(df), dtype=bool)
+    dm = np.abs(col(df, "d_mean_intensity"))
+    fill = col(df, "keypoint_fill")
+    with np.errstate(invalid="ignore"):
+        failed = fill < p["fill_floor"]
+        either = failed | np.concatenate([[False], failed[:-1]])
+        return (dm > p["dmean_dark"]) & either
+
+
 def _exposure_context(df: pd.DataFrame, p: Params) -> pd.DataFrame:
     res, rej = col(df, "photo_residual_med"), col(df, "ratio_reject_rate")
-    steps = [_step_at(i, res, rej, p) for i in range(len(df))]
+    base, sig = col(df, "photo_residual_base"), col(df, "photo_residual_base_sigma")
+    steps = [_step_at(i, res, rej, p, base, sig) for i in range(len(df))]
     return pd.DataFrame({"prev_photo_residual_med": np.concatenate([[np.nan], res[:-1]]),
+                         "dark_step": _dark_step(df, p).astype(float),
                          "jumps": [float(j) for j, _ in steps],
                          "recovers_after_frames": [float(r) for _, r in steps]})
 
@@ -238,9 +373,10 @@ def _exposure_step(df: pd.DataFrame, p: Params) -> np.ndarray:
     with np.errstate(invalid="ignore"):
         candidate = (dm > p["dmean_step"]) & (
             ~(rej >= p["reject_max"]) | _affine_absorbs(df, p))
-    out = np.zeros(len(df), dtype=bool)
+    out = _dark_step(df, p)
+    base, sig = col(df, "photo_residual_base"), col(df, "photo_residual_base_sigma")
     for i in np.flatnonzero(candidate).tolist():
-        jump, after = _step_at(i, res, rej, p)
+        jump, after = _step_at(i, res, rej, p, base, sig)
         if jump and after > 0:
             out[i:i + after] = True
         elif jump and after < 0:  # the data ends before it could recover: keep the step
@@ -253,7 +389,25 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     gain = _v(row, "affine_gain")
     res_aff = _v(row, "photo_residual_affine_med")
     out = [f"|d_mean_intensity| {_fmt(abs(dm))} vs step > {p['dmean_step']:g} grey levels",
-           f"photo_residual_med {_fmt(res)} vs >= {p['residual_step']:g} (healthy ~4, step 20-25)"]
+           f"absolute: photo_residual_med {_fmt(res)} vs >= {p['residual_step']:g} (healthy ~4, "
+           "step 20-25)"]
+    base, sig = _v(row, "photo_residual_base"), _v(row, "photo_residual_base_sigma")
+    if "baseline_window_s" in p:
+        if np.isnan(base):
+            out.append("relative: no baseline of the recording's own (too few rows outside "
+                       f"steps within {p['baseline_window_s']:g} s): the absolute line decides")
+        elif not np.isnan(res):
+            far = res >= p["residual_jump"] * base and res - base > p["baseline_sigmas"] * sig
+            out.append(f"relative (decides): the scene's own residual {base:.3g} (robust sigma "
+                       f"{sig:.2g}, rows within {p['baseline_window_s']:g} s outside steps); "
+                       f"{res:.3g} is {res / base if base > 0 else float('inf'):.2g}x it: "
+                       + ("far above, the exposure signature" if far else
+                          f"not x{p['residual_jump']:g} and {p['baseline_sigmas']:g} sigma "
+                          "above it"))
+    if _v(row, "dark_step") == 1.0:
+        out.append(f"|d_mean_intensity| {abs(dm):.1f} > {p['dmean_dark']:g}, into or out of a "
+                   "view where detection fails: a step into darkness or back, whatever "
+                   "matching does after it")
     if not np.isnan(gain):
         out.append(f"affine_gain {gain:.3f} (1.0 = no gain change; a 20% step is 1.2)")
     aff_max = float(p.get("residual_affine_max", p["residual_step"]))
@@ -295,12 +449,23 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
 
 # --- §4 of docs/derivations.md: H/E x parallax quadrants -------------------------------------------------------
 
-def _quadrant(he: np.ndarray, par: np.ndarray, p: Params) -> np.ndarray:
-    """0 healthy, 1 nearly stationary, 2 planar, 3 pure rotation, -1 not computable."""
+def _quadrant(he: np.ndarray, par: np.ndarray, p: Params,
+              rot_px: np.ndarray | None = None) -> np.ndarray:
+    """0 healthy, 1 nearly stationary, 2 planar, 3 pure rotation, -1 not computable.
+
+    Parallax is low below parallax_split_deg, or, where the rule sets rot_fit_px, where a
+    rotation-only model (the focal free within a factor of 2) explains the correspondences
+    within rot_fit_px: the angle is de-rotated with the given K, which an approximate K leaves
+    inflated by the rotation it failed to remove, while the rotation-only residual is in pixels
+    and does not trust K.
+    """
     q = np.full(len(he), -1)
     ok = ~np.isnan(he) & ~np.isnan(par)
     degenerate = he > p["he_degenerate"]
     low = par < p["parallax_split_deg"]
+    if rot_px is not None and "rot_fit_px" in p:
+        with np.errstate(invalid="ignore"):
+            low = low | (rot_px <= p["rot_fit_px"])
     q[ok & ~degenerate & ~low] = 0
     q[ok & ~degenerate & low] = 1
     q[ok & degenerate & ~low] = 2
@@ -321,17 +486,23 @@ def _keyframe_read(df: pd.DataFrame, p: Params) -> pd.DataFrame:
     """
     he, par = col(df, "h_over_e"), col(df, "parallax_med_deg")
     par_px, rot = col(df, "parallax_med_px"), col(df, "rot_deg")
+    rot_px = col(df, "rot_only_px")
     ref = col(df, "ref_frame")
     out = pd.DataFrame({"kf_h_over_e": he, "kf_parallax_med_deg": par,
                         "kf_parallax_med_px": par_px, "kf_rot_deg": rot,
+                        "kf_rot_only_px": rot_px,
                         "kf_intervals": np.where(ref >= 0, 1.0, np.nan)})
     valid = ~np.isnan(he) & ~np.isnan(par) & (ref >= 0)
     if p.get("read_at", "frame") != "keyframe" or not valid.any():
         return out
     pos = np.flatnonzero(valid)
     rows = pd.DataFrame({"ref": ref[pos], "par": par[pos], "he": he[pos], "px": par_px[pos],
-                         "rot": rot[pos]})
+                         "rot": rot[pos], "rpx": rot_px[pos]})
     read = _upper_half_read(rows, "par")
+    # the rotation-only residual over the same higher-parallax rows (NaN-safe median)
+    upper = rows[rows["par"] >= rows.groupby("ref")["par"].transform("median")]
+    out.loc[pos, "kf_rot_only_px"] = upper.groupby("ref")["rpx"].median().reindex(
+        ref[pos]).to_numpy()
     out.loc[pos, "kf_h_over_e"] = read["he"].reindex(ref[pos]).to_numpy()
     out.loc[pos, "kf_parallax_med_deg"] = read["par"].reindex(ref[pos]).to_numpy()
     out.loc[pos, "kf_parallax_med_px"] = read["px"].reindex(ref[pos]).to_numpy()
@@ -368,6 +539,8 @@ def _two_interval_read(df: pd.DataFrame, out: pd.DataFrame, pos: np.ndarray, ref
     out.loc[at, "kf_parallax_med_deg"] = read["par"].to_numpy()[use]
     out.loc[at, "kf_parallax_med_px"] = read["px"].to_numpy()[use]
     out.loc[at, "kf_intervals"] = 2.0
+    # the rotation-only residual was read over one interval: it does not describe the two
+    out.loc[at, "kf_rot_only_px"] = np.nan
 
 
 # H/E separates a plane from 3D structure only when points off the plane move off the
@@ -381,7 +554,8 @@ def _wanted_quadrant(df: pd.DataFrame, p: Params) -> tuple[pd.DataFrame, np.ndar
     """The keyframe reading, and which rows it puts in the quadrant the rule wants."""
     read = _keyframe_read(df, p)
     with np.errstate(invalid="ignore"):
-        q = _quadrant(read["kf_h_over_e"].to_numpy(), read["kf_parallax_med_deg"].to_numpy(), p)
+        q = _quadrant(read["kf_h_over_e"].to_numpy(), read["kf_parallax_med_deg"].to_numpy(), p,
+                      read["kf_rot_only_px"].to_numpy())
     return read, q == (3 if p["want"] == "pure_rotation" else 2)
 
 
@@ -392,10 +566,6 @@ def _he_parallax(df: pd.DataFrame, p: Params) -> np.ndarray:
             # features crowded into a small cone are locally planar: a homography fits them
             # whatever the scene, so H/E only reads the scene when the features are spread
             hit &= constraint_entropy(df) >= p["min_entropy"]
-        if "min_rotation_deg" in p:
-            # no rotation either: a robot standing still, which accumulates no baseline and
-            # stays safe; the failure is the parked camera that pans
-            hit &= ~(read["kf_rot_deg"].to_numpy() < p["min_rotation_deg"])
         if "min_parallax_px" in p:
             # below it a 3D scene fits H nearly as well as E: the reading cannot tell (a table
             # without parallax_med_px is read as before)
@@ -421,7 +591,7 @@ def _he_parallax_unread(df: pd.DataFrame, p: Params) -> tuple[np.ndarray, str]:
 _QUADRANT_WORDS = {
     -1: "quadrant unknown: h_over_e or parallax_med_deg not computable",
     0: "healthy quadrant (H/E low, parallax high): the normal operating point",
-    1: "nearly stationary with 3D structure (H/E low, parallax low): safe, triangulate nothing yet",
+    1: "H/E low, parallax low: a short baseline over 3D structure, triangulate nothing yet",
     2: "planar quadrant (H/E high, parallax high): decompose H instead of E",
     3: "pure-rotation quadrant (H/E high, parallax low): do not estimate t, do not triangulate",
 }
@@ -443,10 +613,20 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                    f"{_fmt(kf_he)}, parallax {_fmt(kf_par)} (H/E is uninformative at low "
                    "parallax)")
         he, par = kf_he, kf_par
+    rpx = _v(row, "kf_rot_only_px")
     with np.errstate(invalid="ignore"):
-        q = int(_quadrant(np.array([he]), np.array([par]), p)[0])
+        q = int(_quadrant(np.array([he]), np.array([par]), p, np.array([rpx]))[0])
     out += [f"degenerate > {p['he_degenerate']:g} (general 3D < 0.5); parallax split at "
-            f"{p['parallax_split_deg']:g} deg (rotation < 0.1, plane 2-3)", _QUADRANT_WORDS[q]]
+            f"{p['parallax_split_deg']:g} deg (rotation < 0.1, plane 2-3)"]
+    if "rot_fit_px" in p and not np.isnan(rpx):
+        fits = rpx <= p["rot_fit_px"]
+        scale = _v(row, "rot_focal_scale")
+        out.append(f"rotation-only model (focal free 0.5-2x): median residual {rpx:.2g} px "
+                   f"{'<=' if fits else '>'} {p['rot_fit_px']:g} px"
+                   + (f" (best at {scale:.2g}x the given focal)" if not np.isnan(scale) else "")
+                   + (": the views differ by a rotation only, whatever the accuracy of K"
+                      if fits else ": a translation moved the points"))
+    out.append(_QUADRANT_WORDS[q])
     px = _v(row, "kf_parallax_med_px")
     px = _v(row, "parallax_med_px") if np.isnan(px) else px
     floor = float(p.get("min_parallax_px", WEAK_HE_PARALLAX_PX))
@@ -461,13 +641,15 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                    "scene (feature_clustering look-alike)")
     rot = _v(row, "kf_rot_deg")
     rot = _v(row, "rot_deg") if np.isnan(rot) else rot
-    if q == 3 and "min_rotation_deg" in p and rot < p["min_rotation_deg"]:
-        out.append(f"not read as pure rotation: rotation {rot:.2g} deg < "
-                   f"{p['min_rotation_deg']:g}, the camera is standing still (no baseline, "
-                   "no keyframes: safe)")
+    if q == 3 and "still_rotation_deg" in p and rot < p["still_rotation_deg"]:
+        out.append(f"standing still: rotation {rot:.2g} deg < {p['still_rotation_deg']:g} and no "
+                   "parallax either, so nothing can be triangulated (reported as pure_rotation: "
+                   "translation is unobservable; do not estimate t, do not create keyframes)")
     if q == 3:
-        out.append(f"planar_degeneracy ruled out by parallax {par:.3g} deg < "
-                   f"{p['parallax_split_deg']:g}")
+        why = (f"parallax {par:.3g} deg < {p['parallax_split_deg']:g}"
+               if par < p["parallax_split_deg"] else
+               f"the rotation-only fit ({rpx:.2g} px)")
+        out.append(f"planar_degeneracy ruled out by {why}")
     elif q == 2:
         out.append(f"pure_rotation ruled out by parallax {par:.3g} deg >= "
                    f"{p['parallax_split_deg']:g}")
@@ -596,18 +778,26 @@ def _pose_intensity_corr(df: pd.DataFrame, p: Params) -> RunOutcome:
 
 
 _NUM = "number"
+_BASELINE_PARAMS = {"baseline_window_s": _NUM, "baseline_min_rows": _NUM,
+                    "baseline_min_share": _NUM}
 CHECKS: dict[str, Check] = {c.name: c for c in [
     Check("matching_table", "three-way matching table: repetitive structure is ~85% ratio-test rejection "
           "with the features intact (not ~120 features: detection failure) and not inside the "
           "2-3 frames after an exposure step (~55%, recovering)", "frame", "camera",
-          ("n_keypoints", "keypoint_fill", "ratio_reject_rate", "d_mean_intensity"),
+          ("n_keypoints", "keypoint_fill", "ratio_reject_rate", "d_mean_intensity",
+           "ratio_ambiguous_rate"),
           {"fill_floor": _NUM, "reject_repetitive": _NUM, "dmean_step": _NUM,
-           "recovery_frames": _NUM, "max_interval_s": _NUM},
+           "recovery_frames": _NUM, "max_interval_s": _NUM, **_BASELINE_PARAMS,
+           "reject_excess": _NUM, "baseline_sigmas": _NUM, "keypoints_kept": _NUM,
+           "ambiguous_repetitive": _NUM},
           {"n_keypoints": "min", "ratio_reject_rate": "max"},
           {"fill_floor": "keypoint_fill", "reject_repetitive": "ratio_reject_rate",
-           "dmean_step": "d_mean_intensity"},
+           "dmean_step": "d_mean_intensity", "reject_excess": "ratio_reject_base",
+           "ambiguous_repetitive": "ratio_ambiguous_rate"},
           frame=_matching_table, explain=_matching_table_explain, context=_matching_context,
-          optional=frozenset({"max_interval_s"}), unread=_matching_unread),
+          optional=frozenset({"max_interval_s", "reject_excess", "baseline_sigmas",
+                              "keypoints_kept", "ambiguous_repetitive", *_BASELINE_PARAMS}),
+          unread=_matching_unread, baseline=_matching_baseline),
     Check("exposure_step", "a jump of mean intensity with the photometric residual "
           "jumping with it, clean before and clean again within 2-3 frames",
           "frame", "camera",
@@ -615,26 +805,32 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
            "photo_residual_affine_med"),
           {"dmean_step": _NUM, "residual_step": _NUM, "residual_jump": _NUM,
            "residual_affine_max": _NUM, "reject_exposure": _NUM, "reject_max": _NUM,
-           "recovery_frames": _NUM},
+           "recovery_frames": _NUM, "dmean_dark": _NUM, "fill_floor": _NUM,
+           "baseline_sigmas": _NUM, **_BASELINE_PARAMS},
           {"d_mean_intensity": "absmax", "photo_residual_med": "max", "affine_gain": "absdev1"},
           {"dmean_step": "d_mean_intensity", "residual_step": "photo_residual_med",
            "reject_exposure": "ratio_reject_rate", "reject_max": "ratio_reject_rate",
-           "residual_affine_max": "photo_residual_affine_med"},
+           "residual_affine_max": "photo_residual_affine_med", "dmean_dark": "d_mean_intensity",
+           "fill_floor": "keypoint_fill"},
           frame=_exposure_step, explain=_exposure_explain, context=_exposure_context,
-          optional=frozenset({"residual_affine_max"})),
+          optional=frozenset({"residual_affine_max", "dmean_dark", "fill_floor",
+                              "baseline_sigmas", *_BASELINE_PARAMS}),
+          baseline=_exposure_baseline),
     Check("he_parallax_quadrant", "H/E inlier ratio x median parallax separates pure "
           "rotation, a planar scene, a nearly stationary camera and healthy motion",
           "frame", "camera", ("h_over_e", "parallax_med_deg", "ref_frame", "entropy_norm",
-                              "entropy_inliers_norm", "parallax_med_px", "rot_deg"),
+                              "entropy_inliers_norm", "parallax_med_px", "rot_deg", "rot_only_px"),
           {"want": "choice:pure_rotation|planar_degeneracy", "he_degenerate": _NUM,
            "parallax_split_deg": _NUM, "read_at": "choice:keyframe|frame",
-           "min_entropy": _NUM, "min_parallax_px": _NUM, "min_rotation_deg": _NUM},
+           "min_entropy": _NUM, "min_parallax_px": _NUM, "still_rotation_deg": _NUM,
+           "rot_fit_px": _NUM},
           {"h_over_e": "max", "parallax_med_deg": "min"},
           {"he_degenerate": "h_over_e", "parallax_split_deg": "parallax_med_deg",
            "min_entropy": "entropy_norm", "min_parallax_px": "parallax_med_px",
-           "min_rotation_deg": "rot_deg"},
+           "still_rotation_deg": "rot_deg", "rot_fit_px": "rot_only_px"},
           frame=_he_parallax, explain=_he_parallax_explain, context=_keyframe_read,
-          optional=frozenset({"min_entropy", "min_parallax_px", "min_rotation_deg"}),
+          optional=frozenset({"min_entropy", "min_parallax_px", "still_rotation_deg",
+                              "rot_fit_px"}),
           unread=_he_parallax_unread),
     Check("clustering", "low keypoint entropy with enough features, confirmed by the "
           "condition number of the pose information matrix",

@@ -118,6 +118,22 @@ def _unread_notes(table: pd.DataFrame, rules: tuple[Rule, ...]) -> list[str]:
     return notes
 
 
+def add_baselines(table: pd.DataFrame, rules: tuple[Rule, ...]) -> None:
+    """Add the recording's own level of every metric a rule reads against it (in place): the
+    checks' ``baseline`` columns, per topic in time order."""
+    for rule in rules:
+        chk = CHECKS.get(rule.check or "")
+        if chk is None or chk.baseline is None:
+            continue
+        params = rule.param_values()
+        for _topic, pos in topic_groups(table, rule.sensor):
+            cols = chk.baseline(table.iloc[pos], params)
+            for name in cols.columns:
+                if name not in table.columns:
+                    table[name] = np.nan
+                table.loc[table.index[pos], name] = cols[name].to_numpy()
+
+
 def _frame_hits(table: pd.DataFrame, rules: tuple[Rule, ...]) -> dict[str, np.ndarray]:
     hits = {r.id: np.zeros(len(table), dtype=bool) for r in rules}
     for rule in rules:
@@ -311,6 +327,7 @@ def evaluate(table: pd.DataFrame, ruleset: Ruleset) -> Verdicts:
     # pandas deep-copies attrs into every column it hands out: keep the (large) manifest
     # aside while the rules read columns, and put it back on the result
     out.attrs = {}
+    add_baselines(out, ruleset.frame_rules)
     hits = _frame_hits(out, ruleset.frame_rules)
     n = len(out)
     conds: list[list[str]] = [[] for _ in range(n)]

@@ -1,0 +1,196 @@
+"""Scene-relative readings, rotation without trusting K, steps into darkness, planar gating."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from test_verdicts_support import frames
+
+from frontdiag.camera.geometry import homography_threshold_px, rotation_only_fit, two_view
+from frontdiag.verdicts import evaluate, load_ruleset
+from frontdiag.verdicts.baseline import rolling_baseline
+from frontdiag.verdicts.explain import explain_row
+
+
+@pytest.fixture(scope="module")
+def ruleset():
+    return load_ruleset()
+
+
+def hits(result, condition: str) -> np.ndarray:
+    return result.table["conditions"].map(lambda c: condition in c).to_numpy()
+
+
+def _noisy(n: int, centre: float, spread: float, seed: int) -> np.ndarray:
+    return centre + np.random.default_rng(seed).uniform(-spread, spread, n)
+
+
+# --- the baseline itself --------------------------------------------------------------------
+
+def test_rolling_baseline_leaves_out_the_row_excluded_rows_and_thin_windows() -> None:
+    t = np.arange(100, dtype=float)  # 1 s apart
+    x = np.full(100, 0.3)
+    x[40:50] = 0.9
+    med, sig = rolling_baseline(t, x, window_s=30, min_rows=10, min_share=0.25,
+                                exclude=x >= 0.7)
+    assert med[45] == pytest.approx(0.3) and sig[45] == pytest.approx(0.0)
+    # the first rows borrow their level from the rows after them (centred window)
+    assert med[0] == pytest.approx(0.3)
+    # too few rows within the window: no baseline
+    med, _ = rolling_baseline(t, x, window_s=6, min_rows=10, min_share=0.25)
+    assert np.isnan(med).all()
+    # a window that is mostly excluded rows has no level of its own
+    y = np.full(100, 0.9)
+    y[::10] = 0.3
+    med, _ = rolling_baseline(t, y, window_s=30, min_rows=2, min_share=0.25, exclude=y >= 0.7)
+    assert np.isnan(med).all()
+
+
+# --- repetition against the scene's own rejection --------------------------------------------
+
+def test_a_rejection_jump_above_the_scene_at_unchanged_features_is_repetition(ruleset) -> None:
+    """0.30 -> 0.62: under the absolute 0.70 line, but twice the scene's own level with the
+    feature count unchanged."""
+    rej = _noisy(300, 0.30, 0.03, seed=1)
+    rej[150:200] = _noisy(50, 0.62, 0.02, seed=2)
+    res = evaluate(frames(300, {i: {"ratio_reject_rate": float(r)} for i, r in enumerate(rej)}),
+                   ruleset)
+    rep = hits(res, "repetitive_structure")
+    assert rep[152:198].all() and not rep[:145].any() and not rep[205:].any()
+    assert res.table["ratio_reject_base"].iloc[170] == pytest.approx(0.30, abs=0.02)
+    lines = next(e for e in explain_row(res, 170) if e.rule.id == "FD-REP-001").check_lines
+    assert any("scene baseline" in ln and "repetition signature" in ln for ln in lines)
+    assert any(ln.startswith("absolute:") for ln in lines)
+
+
+def test_a_scene_that_always_rejects_much_is_not_repetition(ruleset) -> None:
+    """A street at 10 Hz: rejection 0.60-0.78 on every frame, crossing the absolute line on
+    about a third of them, and never far above the scene's own level."""
+    rej = _noisy(200, 0.69, 0.09, seed=3)
+    assert (rej >= 0.70).mean() > 0.3
+    res = evaluate(frames(200, {i: {"ratio_reject_rate": float(r)} for i, r in enumerate(rej)},
+                          rate_hz=10), ruleset)
+    assert not hits(res, "repetitive_structure").any()
+
+
+def test_a_rejection_jump_with_features_lost_is_not_repetition(ruleset) -> None:
+    rej = _noisy(300, 0.30, 0.03, seed=4)
+    change = {i: {"ratio_reject_rate": float(r)} for i, r in enumerate(rej)}
+    for i in range(150, 200):
+        change[i] = {"ratio_reject_rate": 0.65, "n_keypoints": 500, "keypoint_fill": 0.5}
+    res = evaluate(frames(300, change), ruleset)
+    assert not hits(res, "repetitive_structure").any()
+
+
+def test_a_recording_that_is_one_long_aisle_reads_the_absolute_line(ruleset) -> None:
+    res = evaluate(frames(120, {range(120): {"ratio_reject_rate": 0.82}}), ruleset)
+    assert np.isnan(res.table["ratio_reject_base"]).all()
+    assert hits(res, "repetitive_structure")[5:].all()
+
+
+# --- exposure against the scene's own residual ------------------------------------------------
+
+def _residual_run(level: float, step: float) -> dict[int, dict[str, float]]:
+    res = _noisy(200, level, 0.1 * level, seed=5)
+    change = {i: {"photo_residual_med": float(r)} for i, r in enumerate(res)}
+    change[100] = {"photo_residual_med": step, "d_mean_intensity": 12.0}
+    return change
+
+
+def test_a_residual_far_above_the_scene_is_the_exposure_signature(ruleset) -> None:
+    """A quiet scene (residual 2) steps to 6: under the absolute 8, three times its own level."""
+    res = evaluate(frames(200, _residual_run(2.0, 6.0)), ruleset)
+    exp = hits(res, "exposure_step")
+    assert exp[100] and exp.sum() == 1
+    lines = next(e for e in explain_row(res, 100) if e.rule.id == "FD-EXP-001").check_lines
+    assert any("relative (decides)" in ln and "exposure signature" in ln for ln in lines)
+
+
+def test_a_residual_at_the_scene_level_is_not_a_step(ruleset) -> None:
+    """A busy scene (residual 12) whose mean moves by 12: the residual 14 is its own level,
+    although it is above the absolute 8."""
+    res = evaluate(frames(200, _residual_run(12.0, 14.0)), ruleset)
+    assert not hits(res, "exposure_step").any()
+
+
+# --- steps into darkness ----------------------------------------------------------------------
+
+def test_lights_out_and_back_are_exposure_steps_though_detection_fails_after(ruleset) -> None:
+    dark = {"n_keypoints": 40, "keypoint_fill": 0.04, "ratio_reject_rate": np.nan,
+            "photo_residual_med": np.nan, "d_mean_intensity": 0.1, "mean_intensity": 3.0,
+            "h_over_e": np.nan, "parallax_med_deg": np.nan}
+    change: dict[int | range, dict[str, float]] = {range(60, 90): dark}
+    change[60] = {**dark, "d_mean_intensity": -110.0}
+    change[90] = {"d_mean_intensity": 112.0, "ratio_reject_rate": np.nan,
+                  "photo_residual_med": np.nan}
+    res = evaluate(frames(150, change), ruleset)
+    exp = hits(res, "exposure_step")
+    assert exp[60] and exp[90] and exp.sum() == 2
+    assert hits(res, "detection_failure")[61:90].all()
+    lines = next(e for e in explain_row(res, 60) if e.rule.id == "FD-EXP-001").check_lines
+    assert any("into darkness" in ln for ln in lines)
+
+
+def test_a_bright_scene_cut_is_not_a_darkness_step(ruleset) -> None:
+    """The mean jumps as far, but features are found on both sides: not a step into darkness."""
+    res = evaluate(frames(100, {50: {"d_mean_intensity": -90.0, "ratio_reject_rate": 0.99,
+                                     "photo_residual_med": 60.0}}), ruleset)
+    assert not hits(res, "exposure_step").any()
+
+
+# --- rotation without trusting K ----------------------------------------------------------------
+
+def _scene(n: int, seed: int, depth: tuple[float, float] = (2.0, 8.0)) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    z = rng.uniform(*depth, n)
+    x = rng.uniform(-0.6, 0.6, n) * z
+    y = rng.uniform(-0.4, 0.4, n) * z
+    return np.column_stack([x, y, z])
+
+
+def _project(P: np.ndarray, K: np.ndarray, R: np.ndarray, t: np.ndarray,
+             noise: float, seed: int) -> np.ndarray:
+    q = (P @ R.T + t) @ K.T
+    xy = q[:, :2] / q[:, 2:3]
+    return xy + np.random.default_rng(seed).normal(0, noise, xy.shape)
+
+
+K_TRUE = np.array([[700.0, 0, 640], [0, 700.0, 360], [0, 0, 1]])
+
+
+@pytest.mark.parametrize("focal_error", [0.85, 1.0, 1.18])
+def test_a_wide_pan_reads_as_rotation_with_an_approximate_focal(focal_error: float) -> None:
+    P = _scene(400, seed=6)
+    R = cv2.Rodrigues(np.array([0.02, np.radians(25.0), 0.01]))[0]
+    p0 = _project(P, K_TRUE, np.eye(3), np.zeros(3), 0.7, seed=7)
+    p1 = _project(P, K_TRUE, R, np.zeros(3), 0.7, seed=8)
+    keep = (p1[:, 0] > 0) & (p1[:, 0] < 1280) & (p1[:, 1] > 0) & (p1[:, 1] < 720)
+    K = K_TRUE.copy()
+    K[0, 0] *= focal_error
+    K[1, 1] *= focal_error
+    resid, scale = rotation_only_fit(p0[keep], p1[keep], K)
+    assert resid <= homography_threshold_px(1.0)
+    assert scale * focal_error == pytest.approx(1.0, abs=0.08)
+    if focal_error != 1.0:  # the de-rotated angle with the wrong K reads as parallax
+        tv = two_view(p0[keep], p1[keep], K)
+        assert tv.parallax_med_deg > 0.3
+
+
+def test_a_translating_3d_scene_does_not_read_as_rotation() -> None:
+    P = _scene(400, seed=9)
+    R = cv2.Rodrigues(np.array([0.0, np.radians(3.0), 0.0]))[0]
+    p0 = _project(P, K_TRUE, np.eye(3), np.zeros(3), 0.7, seed=10)
+    p1 = _project(P, K_TRUE, R, np.array([-0.3, 0.0, 0.1]), 0.7, seed=11)
+    resid, _ = rotation_only_fit(p0, p1, K_TRUE * np.array([[1.1], [1.1], [1]]))
+    assert resid > 3 * homography_threshold_px(1.0)
+
+
+def test_h_over_e_high_with_a_rotation_fit_reads_rotation_not_planar(ruleset) -> None:
+    """An approximate K leaves 2 deg of apparent parallax after a pan: the angle alone would say
+    planar; the rotation-only fit says the views differ by a rotation only."""
+    pan = {"h_over_e": 0.95, "parallax_med_deg": 2.0, "parallax_med_px": 25.0, "rot_deg": 25.0}
+    res = evaluate(frames(40, {range(10, 30): {**pan, "rot_only_px": 1.1}}), ruleset)
+    assert hits(res, "pure_rotation")[12:28].all() and not hits(res, "planar_degeneracy").any()
+    res = evaluate(frames(40, {range(10, 30): {**pan, "rot_only_px": 14.0}}), ruleset)
+    assert hits(res, "planar_degeneracy")[12:28].all() and not hits(res, "pure_rotation").any()
