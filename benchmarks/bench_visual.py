@@ -78,15 +78,17 @@ def main() -> None:
     print(f"report.html    {_mb(len(page.encode()))} in {time.perf_counter() - t0:.1f} s "
           f"({len(run.verdicts.episodes)} episodes)")
 
-    from frontdiag.report.frame_image import explain_png
+    from frontdiag.report.frame_image import encode_png, evidence, render, verdict_lines
 
     cams = run.table.index[run.table["sensor"] == "camera"]
-    if len(cams):
+    if len(cams):  # what `explain --png` does for one frame
         pos = int(cams[len(cams) // 2])
+        row = {str(k): v for k, v in run.table.iloc[pos].to_dict().items()}
         t0 = time.perf_counter()
-        explain_png(out / "frame.png", out, run.verdicts, pos)
-        print(f"explain --png  {(out / 'frame.png').stat().st_size / 1e3:.0f} kB in "
-              f"{time.perf_counter() - t0:.2f} s")
+        png = encode_png(render(evidence(out, row, run.manifest), row,
+                                verdict_lines(run.verdicts, pos)))
+        (out / "frame.png").write_bytes(png)
+        print(f"explain --png  {len(png) / 1e3:.0f} kB in {time.perf_counter() - t0:.2f} s")
     print(f"results in {out}")
 
 
