@@ -166,3 +166,59 @@ def test_cli_outputs_and_exit_codes(tmp_path: Path, capsys) -> None:
     text = capsys.readouterr().out
     assert "fold fraction" in text and "FD-LOP-001" in text
     assert main(["loops", str(tmp_path / "missing.g2o")]) == 2
+    capsys.readouterr()
+    assert main(["loops", str(gpath), "--optimize", "--json"]) == 1
+    import json
+
+    payload = json.loads(capsys.readouterr().out)
+    flagged = payload["optimize"]["flagged"]
+    assert len(flagged) == 1 and flagged[0]["i"] == 7
+    # believed, the 4 m lie is absorbed by the map; without it the loop disagrees by ~4 m
+    assert flagged[0]["residual_after_m"] < 0.5 < 3.5 < flagged[0]["residual_clean_m"]
+    assert payload["optimize"]["ate_m"] > 0.1
+
+
+def test_optimiser_hides_the_lie_as_the_fold_fraction_predicts(tmp_path: Path) -> None:
+    """Solved with the false loop in, its residual is 3 (1 - f) = 0.6 mm: the map moved."""
+    from frontdiag.loops import lie
+    from frontdiag.loops.chain import build_chain
+    from frontdiag.loops.solve import solve
+
+    g = read_graph(_line_graph(tmp_path / "line.g2o"))
+    P, _ = solve(g, np.ones(g.n_edges, bool), build_chain(g, g.odometry_mask()).P)
+    e = g.n_edges - 1
+    R = lie.inv(g.Z[e]) @ lie.inv(P[g.src[e]]) @ P[g.dst[e]]
+    f = 100 / (100 + 1 / 54)
+    assert abs(R[0, 2]) == pytest.approx(3.0 * (1 - f), rel=1e-3)
+    assert abs(P[-1, 0, 2] - P[0, 0, 2]) == pytest.approx(54 - 3.0 * f, rel=1e-6)
+
+
+def test_simulated_warehouse_graph_labels_and_audit(tmp_path: Path, capsys) -> None:
+    """Laps of the hall with mirror and bay aliases: the audit refuses the false loops."""
+    gpath = tmp_path / "hall.g2o"
+    assert main(["simulate", "--pose-graph", str(gpath), "--seconds", "100", "--seed", "2"]) == 0
+    labels = pd.read_csv(str(gpath) + ".labels.csv")
+    assert set(labels["label"]) == {"true_loop", "false_loop"}
+    assert set(labels.loc[labels["label"] == "false_loop", "kind"]) <= {"mirror", "bay"}
+    t = audit(read_graph(gpath)).table.merge(labels, on=["i", "j"])
+    false = t["label"] == "false_loop"
+    assert (t.loc[false, "verdict"] != "ok").mean() >= 0.95
+    assert (t.loc[~false, "verdict"] == "ok").mean() >= 0.95
+    capsys.readouterr()
+
+
+def test_map_test_refutes_a_long_loop_the_chain_cannot(tmp_path: Path) -> None:
+    """Two laps of the square with many true loops and one long false loop whose lie (3 m)
+    hides inside the chain's uncertainty: the map of the true loops refutes it."""
+    spec = [(k, 40 + k, 0.0) for k in range(0, 40, 2)] + [(3, 75, 0.0)]
+    path = _square_graph(tmp_path / "sq.g2o", spec)
+    text = path.read_text().splitlines()
+    # replace the last loop with a claim that 75 sits where 3 is plus 3 m
+    parts = text[-1].split()
+    parts[3] = str(float(parts[3]) + 3.0)
+    text[-1] = " ".join(parts)
+    path.write_text("\n".join(text) + "\n")
+    res = audit(read_graph(path))
+    row = res.table[res.table["i"] == 3].iloc[0]
+    assert row["verdict"] == "fail"
+    assert (res.table[res.table["i"] != 3]["verdict"] == "ok").all()

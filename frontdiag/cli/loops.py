@@ -33,6 +33,8 @@ Examples:
 
   frontdiag loops run.g2o --explain 58-4             # the loop between vertices 58 and 4
 
+  frontdiag loops run.g2o --optimize                 # solve with and without flagged loops
+
 
 Exit codes: 0 nothing at or above --fail-on, 1 a loop at or above --fail-on, 2 bad input /
 usage / config, 3 internal error.
@@ -59,6 +61,11 @@ def loops_cmd(
                                            help="Loop rules TOML instead of rules/loops/loops.toml."),
     explain: str | None = typer.Option(None, "--explain", metavar="ID",
                                        help="Explain one loop: its number or I-J vertex ids."),
+    no_map: bool = typer.Option(False, "--no-map",
+                                help="Skip the re-test against the optimised map (FD-LOP-003)."),
+    optimize: bool = typer.Option(False, "--optimize",
+                                  help="Solve with and without the flagged loops; report each "
+                                       "flagged loop's residual before/after and the ATE."),
     fail_on: str = typer.Option("fail", "--fail-on", metavar="[warn|fail|never]",
                                 help="Exit 1 when a loop of this severity exists: warn, fail, "
                                      "never."),
@@ -97,6 +104,12 @@ def loops_cmd(
         typer.echo(explain_loop(result, pick_loop(result, explain)))
         return 0
     opt: dict[str, Any] | None = None
+    if optimize:
+        from frontdiag.loops.optimize import compare_solutions
+
+        if show:
+            err.print("optimising with and without the flagged loops")
+        opt = compare_solutions(result)
     gate_result = gate_loops(result, fail_on)  # type: ignore[arg-type]
     summ = summary(result, top=top)
     if out_dir is not None:
@@ -105,7 +118,8 @@ def loops_cmd(
         write_loops_table(out_dir, result)
         write_manifest(out_dir, {"command": "loops", "input": {"path": str(graph_file)},
                                  "options": {"sqrt_info": sqrt_info, "layout": layout,
-                                             "odom_max_gap": odom_max_gap},
+                                             "odom_max_gap": odom_max_gap,
+                                             "map_test": not no_map},
                                  "rules": rules.model_dump(mode="json"),
                                  "summary": summ, "optimize": opt})
     if junit is not None:

@@ -50,10 +50,17 @@ def register(app: typer.Typer) -> None:
                                      "(schema docs/schemas/simulate-list.json)."),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
         force: bool = typer.Option(False, "--force", help="Replace an existing output."),
+        pose_graph: Path = typer.Option(None, "--pose-graph",
+                                        help="Also (or only) write laps of the hall as a g2o "
+                                             "pose graph with true and perceptual-aliasing false "
+                                             "loops, labels in FILE.labels.csv (for `frontdiag "
+                                             "loops`)."),
     ) -> int:
         """Simulate a warehouse AMR scenario and write a labelled recording.
 
         Example: frontdiag simulate repetitive_aisle -o aisle.mcap --seconds 20 --seed 3
+
+        Pose graph only: frontdiag simulate --pose-graph hall.g2o --seconds 150
         """
         from rich.table import Table
 
@@ -79,6 +86,18 @@ def register(app: typer.Typer) -> None:
                 table.add_row(sc.name, sc.summary, sc.shows, f"{sc.default_seconds:g}")
             console.print(table)
             return 0
+        if pose_graph is not None:
+            from frontdiag.sim.posegraph import warehouse_pose_graph
+
+            if pose_graph.exists() and not force:
+                raise ConfigError(f"{pose_graph} exists; pass --force to replace it")
+            gpath, lpath, n = warehouse_pose_graph(pose_graph, seconds=seconds or 150.0,
+                                                   seed=seed)
+            console.print(f"wrote {gpath} ({n['poses']} poses, {n['true_loops']} true and "
+                          f"{n['false_loops']} false loops) and {lpath}", highlight=False,
+                          soft_wrap=True)
+            if output is None:
+                return 0
         if scenario is None:
             raise ConfigError("name a scenario", hint="frontdiag simulate --list shows them")
         if output is None:

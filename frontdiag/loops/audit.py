@@ -51,11 +51,13 @@ class LoopAudit:
     timings: dict[str, float] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     map_poses: np.ndarray | None = None
+    calibration: float = 1.0
+    """Factor applied to every covariance of the file (1: as read)."""
 
     def kept_edges(self) -> np.ndarray:
         """Edges (odometry and loops) of the graph without the refuted loops."""
         keep = self.odometry.copy()
-        keep[self.table["edge"].to_numpy()[self.table["verdict"].to_numpy() != "fail"]] = True
+        keep[self.table["edge"].to_numpy()[self.table["verdict"].to_numpy() == "ok"]] = True
         return keep
 
 
@@ -76,7 +78,7 @@ def _calibration_note(t: pd.DataFrame, k: int) -> str | None:
 
 
 def audit(graph: PoseGraph, rules: LoopRules | None = None, *, odom_max_gap: int = 1,
-          verify: bool = False,
+          verify: bool = True, calibrate: bool = False,
           progress: Callable[[str], None] | None = None) -> LoopAudit:
     """Test every loop of ``graph`` (see the module doc) and return the per-loop table."""
     rules = rules or load_loop_rules()
@@ -85,6 +87,10 @@ def audit(graph: PoseGraph, rules: LoopRules | None = None, *, odom_max_gap: int
     t0 = time.perf_counter()
     odo = graph.odometry_mask(odom_max_gap)
     loops = np.flatnonzero(~odo)
+    r2 = rules.by_statistic("pcm")
+    calibration = 1.0
+    if calibrate:
+        graph, calibration = calibrate_information(graph, odo, loops, int(r2.param("window")))
     chain = build_chain(graph, odo)
     st = loop_stats(graph, chain, loops)
     timings["chain_s"] = time.perf_counter() - t0
@@ -109,7 +115,6 @@ def audit(graph: PoseGraph, rules: LoopRules | None = None, *, odom_max_gap: int
 
     # --- pairs (PCM) ------------------------------------------------------------------------
     t1 = time.perf_counter()
-    r2 = rules.by_statistic("pcm")
     a, b = graph.src[loops], graph.dst[loops]
     pairs = pcm.candidate_pairs(a, b, int(r2.param("window")))
     alive = ~bad1
@@ -151,6 +156,11 @@ def audit(graph: PoseGraph, rules: LoopRules | None = None, *, odom_max_gap: int
     result = LoopAudit(graph=graph, rules=rules, chain=chain, stats=st, table=t, odometry=odo,
                        n_pairs=int(pairs.shape[0]), n_conflicts=int(conflict.shape[0]),
                        timings=timings)
+    result.calibration = calibration
+    if calibration != 1.0:
+        result.notes.append(f"covariances scaled by {calibration:.3g} (the median χ² of the "
+                            "pairwise cycles over its expected value; --no-calibrate keeps the "
+                            "file's)")
     _finish(result, verdict, rule, reason)
     if verify and n:
         from frontdiag.loops.verify import verify_against_map
@@ -165,6 +175,29 @@ def audit(graph: PoseGraph, rules: LoopRules | None = None, *, odom_max_gap: int
         result.notes.append(note)
     timings["total_s"] = time.perf_counter() - t0
     return result
+
+
+def calibrate_information(graph: PoseGraph, odo: np.ndarray, loops: np.ndarray,
+                          window: int) -> tuple[PoseGraph, float]:
+    """Scale every covariance by s = lower-quartile pairwise-cycle χ² / lower quartile of χ²_k.
+
+    Short cycles of two neighbouring loops and two short chains are the graph's own evidence of
+    its noise. A cycle through a false loop can only raise its χ², so the lower quartile stays
+    right while up to three quarters of the cycles touch false loops. Returns the
+    graph (a copy with information / s) and s; s = 1 with fewer than 20 testable pairs.
+    """
+    from dataclasses import replace
+
+    chain = build_chain(graph, odo)
+    pairs = pcm.candidate_pairs(graph.src[loops], graph.dst[loops], window)
+    chi = pcm.pair_chi2(graph, chain, loops, pairs)
+    chi = chi[np.isfinite(chi)]
+    if chi.size < 20:
+        return graph, 1.0
+    s = float(np.quantile(chi, 0.25)) / pcm.threshold(graph.k, 0.75)
+    if not np.isfinite(s) or s <= 0:
+        return graph, 1.0
+    return replace(graph, info=graph.info / s), s
 
 
 def _finish(result: LoopAudit, verdict: np.ndarray, rule: np.ndarray,

@@ -11,7 +11,7 @@ robust pose-graph back-ends:
 Every false loop claims what place recognition claims on an alias: the two poses are at nearly
 the same place, translation uniform in a disc (ball in 3D) of ``claim_radius_m``, heading drawn
 uniformly. Its information is the median information of the graph's loops, so it looks exactly
-as trustworthy as a true one.
+as trustworthy as a true one, and its measurement carries noise drawn from that information.
 """
 
 from __future__ import annotations
@@ -92,6 +92,9 @@ def inject_false_loops(graph: PoseGraph, fraction: float, kind: str, seed: int, 
     info = np.median(graph.info[true_loops], axis=0) if true_loops.size else np.median(
         graph.info, axis=0)
     info = 0.5 * (info + info.T)
+    # every claim carries the noise its information promises
+    L = np.linalg.cholesky(np.linalg.inv(info))
+    Z = Z @ lie.exp(rng.standard_normal((s.size, info.shape[0])) @ L.T, graph.dim)
     new = replace(
         graph,
         src=np.concatenate([graph.src, s]),

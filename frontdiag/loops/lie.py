@@ -132,3 +132,31 @@ def prefix_products(steps: F) -> F:
         P[shift + 1:] = P[1:n + 1 - shift] @ P[shift + 1:]
         shift *= 2
     return P
+
+
+def exp(xi: F, d: int) -> F:
+    """Exp map (..., k) -> (..., d+1, d+1), translation first."""
+    shape = xi.shape[:-1]
+    if d == 2:
+        rho, th = xi[..., :2], xi[..., 2]
+        small = np.abs(th) < 1e-9
+        ths = np.where(small, 1.0, th)
+        a = np.where(small, 1.0 - th**2 / 6.0, np.sin(ths) / ths)
+        b = np.where(small, th / 2.0, (1.0 - np.cos(ths)) / ths)
+        x = a * rho[..., 0] - b * rho[..., 1]
+        y = b * rho[..., 0] + a * rho[..., 1]
+        flat = se2(x.reshape(-1), y.reshape(-1), th.reshape(-1))
+        return flat.reshape((*shape, 3, 3))
+    rho, phi = xi[..., :3].reshape(-1, 3), xi[..., 3:].reshape(-1, 3)
+    ang = np.linalg.norm(phi, axis=-1)
+    W = _skew(phi)
+    small = ang < 1e-6
+    angs = np.where(small, 1.0, ang)
+    c1 = np.where(small, 0.5, (1.0 - np.cos(angs)) / angs**2)
+    c2 = np.where(small, 1.0 / 6.0, (angs - np.sin(angs)) / angs**3)
+    V = np.eye(3) + c1[:, None, None] * W + c2[:, None, None] * (W @ W)
+    out = np.zeros((rho.shape[0], 4, 4))
+    out[:, :3, :3] = Rotation.from_rotvec(phi).as_matrix()
+    out[:, :3, 3] = np.einsum("nij,nj->ni", V, rho)
+    out[:, 3, 3] = 1.0
+    return out.reshape((*shape, 4, 4))

@@ -1,0 +1,137 @@
+"""Loop audit vs GNC on public pose graphs with injected false loops, side by side in one run.
+
+For every graph of benchmarks/loops_data.json (fetch them first with
+benchmarks/fetch_loops_data.py), every kind of false loop (random, local, grouped; see
+frontdiag/loops/inject.py) and every share of the true loop count (10/30/50 %), seeded:
+
+* recall     share of false loops the audit does not keep (verdict fail, or warn: unverified)
+* retention  share of true loops it keeps
+* ATE kept   map of the kept loops vs map of the clean graph (rigidly aligned RMS, m)
+* ATE all    map with every loop believed vs the clean map: what the false loops do
+* folded     ATE kept > 1.5 x ATE of the clean graph with 2 % of its true loops dropped at
+             random (the change the 0.98 retention bar allows)
+* audit s    wall time of `audit` (chain, pairs, map rounds)
+* GNC s      GTSAM's GncLMOptimizer (TLS, odometry as known inliers) on the same graph, its
+             recall / retention, and the ratio of times (same process, same machine load)
+
+    python benchmarks/bench_loops.py [--graphs M3500,intel] [--kinds random] [--fractions 0.1]
+                                     [--gnc first|all|none] [--seed 1]
+
+GNC needs the loops-opt extra (GTSAM); without it the GNC columns are empty. Times on a shared
+machine are noisy: compare the ratio, measured in the same run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from frontdiag.loops import audit, read_graph
+from frontdiag.loops.chain import build_chain
+from frontdiag.loops.inject import KINDS, inject_false_loops
+from frontdiag.loops.optimize import ate, gtsam_problem
+from frontdiag.loops.solve import solve
+
+HERE = Path(__file__).resolve().parent
+
+
+def gnc(graph, odo, init):  # type: ignore[no-untyped-def]
+    """GTSAM's GNC (TLS) with the odometry as known inliers: (seconds, inlier mask per edge)."""
+    import gtsam
+
+    g, values = gtsam_problem(graph, np.ones(graph.n_edges, bool), init)
+    params = gtsam.GncLMParams()
+    params.setKnownInliers([0, *(int(e) + 1 for e in np.flatnonzero(odo))])
+    t0 = time.perf_counter()
+    opt = gtsam.GncLMOptimizer(g, values, params)
+    opt.optimize()
+    secs = time.perf_counter() - t0
+    w = np.asarray(opt.getWeights())[1:]
+    return secs, w >= 0.5
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--data", type=Path, default=HERE / "data" / "loops")
+    ap.add_argument("--graphs", default="")
+    ap.add_argument("--kinds", default=",".join(KINDS))
+    ap.add_argument("--fractions", default="0.1,0.3,0.5")
+    ap.add_argument("--gnc", choices=("first", "all", "none"), default="first",
+                    help="GNC on the first configuration of each graph, on all, or none")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--json", type=Path, default=None, help="also write the rows as JSON")
+    args = ap.parse_args()
+    manifest = json.loads((HERE / "loops_data.json").read_text())["graphs"]
+    want = {s for s in args.graphs.split(",") if s}
+    kinds = [k for k in args.kinds.split(",") if k]
+    fracs = [float(f) for f in args.fractions.split(",") if f]
+    rows = []
+    head = (f"{'graph':<15}{'kind':<9}{'false%':>7}{'n_false':>8}{'recall':>8}{'retain':>8}"
+            f"{'ATEkept':>9}{'ATEall':>9}{'fold@':>8}{'folded':>7}{'audit_s':>9}{'GNC_s':>8}"
+            f"{'GNCrec':>8}{'GNCret':>8}{'x':>6}")
+    print(head, flush=True)
+    for entry in manifest:
+        if want and entry["name"] not in want:
+            continue
+        path = args.data / entry["file"]
+        if not path.exists():
+            print(f"{entry['name']}: {path} missing (run benchmarks/fetch_loops_data.py)")
+            continue
+        clean = read_graph(path, sqrt_info=entry["sqrt_info"])
+        odo = clean.odometry_mask()
+        init = build_chain(clean, odo).P
+        P_ref, _ = solve(clean, np.ones(clean.n_edges, bool), init)
+        rng = np.random.default_rng(args.seed)
+        drop = np.ones(clean.n_edges, bool)
+        true_loops = np.flatnonzero(~odo)
+        drop[rng.choice(true_loops, max(1, int(0.02 * true_loops.size)), replace=False)] = False
+        P_drop, _ = solve(clean, drop, init)
+        fold_at = 1.5 * ate(P_drop, P_ref)
+        first = True
+        for kind in kinds:
+            for frac in fracs:
+                g, false = inject_false_loops(clean, frac, kind, seed=args.seed)
+                t0 = time.perf_counter()
+                res = audit(g)
+                secs = time.perf_counter() - t0
+                t = res.table
+                fl = false[t["edge"].to_numpy()]
+                refused = (t["verdict"] != "ok").to_numpy()
+                recall = float(refused[fl].mean()) if fl.any() else float("nan")
+                retain = float((~refused[~fl]).mean())
+                P_kept, _ = solve(g, res.kept_edges(), init)
+                P_all, _ = solve(g, np.ones(g.n_edges, bool), init)
+                a_kept, a_all = ate(P_kept, P_ref), ate(P_all, P_ref)
+                row = {"graph": entry["name"], "kind": kind, "fraction": frac,
+                       "n_false": int(fl.sum()), "recall": recall, "retention": retain,
+                       "ate_kept_m": a_kept, "ate_all_m": a_all, "fold_at_m": fold_at,
+                       "folded": bool(a_kept > fold_at), "audit_s": secs}
+                gs = grec = gret = ratio = float("nan")
+                if args.gnc == "all" or (args.gnc == "first" and first):
+                    try:
+                        gs, inl = gnc(g, g.odometry_mask(), init)
+                        lf = false & ~g.odometry_mask()
+                        lt = ~false & ~g.odometry_mask()
+                        grec, gret = float((~inl[lf]).mean()), float(inl[lt].mean())
+                        ratio = gs / secs
+                    except ImportError:
+                        pass
+                    row.update({"gnc_s": gs, "gnc_recall": grec, "gnc_retention": gret,
+                                "speedup": ratio})
+                first = False
+                rows.append(row)
+                print(f"{entry['name']:<15}{kind:<9}{frac * 100:>6.0f}%{row['n_false']:>8}"
+                      f"{recall:>8.3f}{retain:>8.3f}{a_kept:>9.3f}{a_all:>9.2f}{fold_at:>8.3f}"
+                      f"{'YES' if row['folded'] else 'no':>7}{secs:>9.1f}{gs:>8.1f}{grec:>8.3f}"
+                      f"{gret:>8.3f}{ratio:>6.1f}", flush=True)
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
