@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 
 from frontdiag import __version__
-from frontdiag.errors import DecodeError, FrontdiagError, RecordingError
+from frontdiag.errors import ConfigError, DecodeError, FrontdiagError, RecordingError
 from frontdiag.io.camera_info import (
     HOW_TO_PASS_K,
     from_camera_info,
@@ -95,29 +95,32 @@ class Analysis:
 
 def resolve_intrinsics(rec: Recording, choice: TopicChoice, opts: AnalysisOptions,
                        notes: list[str]) -> Intrinsics | None:
-    """Explicit options win over the recording's CameraInfo (and the note says so)."""
-    from_rec: Intrinsics | None = None
-    if choice.camera_info:
-        for raw in rec.messages([choice.camera_info]):
-            try:
-                from_rec = from_camera_info(rec.deserialize(raw), choice.camera_info)
-            except FrontdiagError:
-                raise
-            except Exception as exc:
-                notes.append(f"CameraInfo on {choice.camera_info} undecodable ({exc})")
-            if from_rec is None:
-                notes.append(f"CameraInfo on {choice.camera_info} has no K (all zeros)")
-            break
-    explicit: Intrinsics | None = None
-    if opts.intrinsics:
-        explicit = parse_intrinsics(opts.intrinsics)
-    elif opts.camera_info_file:
-        explicit = load_camera_info_yaml(opts.camera_info_file)
+    """Explicit options win over the recording's CameraInfo, which is then not read at all (so a
+    broken CameraInfo cannot stop a run the user calibrated)."""
+    if opts.intrinsics is not None:
+        explicit: Intrinsics | None = parse_intrinsics(opts.intrinsics)
+    elif opts.camera_info_file is not None:
+        explicit = load_camera_info_yaml(opts.camera_info_file, notes)
+    else:
+        explicit = None
     if explicit is not None:
-        if from_rec is not None:
-            notes.append(f"using {explicit.source} instead of {from_rec.source}")
+        if choice.camera_info:
+            notes.append(f"using {explicit.source} instead of the CameraInfo on "
+                         f"{choice.camera_info}")
         return explicit
-    return from_rec
+    if not choice.camera_info:
+        return None
+    for raw in rec.messages([choice.camera_info]):
+        try:
+            msg = rec.deserialize(raw)
+        except Exception as exc:
+            notes.append(f"CameraInfo on {choice.camera_info} undecodable ({exc})")
+            return None
+        from_rec = from_camera_info(msg, choice.camera_info, notes)
+        if from_rec is None:
+            notes.append(f"CameraInfo on {choice.camera_info} has no K (all zeros)")
+        return from_rec
+    return None
 
 
 def _expected(count: int | None, opts: AnalysisOptions, rec: Recording) -> int | None:
@@ -130,6 +133,27 @@ def _expected(count: int | None, opts: AnalysisOptions, rec: Recording) -> int |
         count = int(count * max(hi - lo, 0.0) / span) + 1 if span > 0 else count
     n = -(-count // max(opts.stride, 1))
     return min(n, opts.max_frames) if opts.max_frames else n
+
+
+def check_selection(opts: AnalysisOptions) -> None:
+    """Refuse options no recording can satisfy, before the recording is opened."""
+    import math
+
+    for name, value in (("--start", opts.start_s), ("--end", opts.end_s)):
+        if value is not None and not math.isfinite(value):
+            raise ConfigError(f"{name} {value}: must be a finite number of seconds")
+    if opts.start_s is not None and opts.start_s < 0:
+        raise ConfigError(f"--start {opts.start_s:g}: must be >= 0 seconds")
+    if opts.end_s is not None and opts.start_s is not None and opts.end_s <= opts.start_s:
+        raise ConfigError(f"--end {opts.end_s:g} must be after --start {opts.start_s:g}")
+    if opts.end_s is not None and opts.end_s < 0:
+        raise ConfigError(f"--end {opts.end_s:g}: must be >= 0 seconds")
+    if opts.stride < 1:
+        raise ConfigError(f"--stride {opts.stride}: must be >= 1")
+    if opts.max_frames is not None and opts.max_frames < 1:
+        raise ConfigError(f"--max-frames {opts.max_frames}: must be >= 1")
+    if opts.intrinsics is not None:
+        parse_intrinsics(opts.intrinsics)
 
 
 # --------------------------------------------------------------------------------------------
@@ -146,12 +170,9 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
     with ``jobs > 1`` the frames are analysed elsewhere and it is not called).
     """
     opts = options or AnalysisOptions()
-    if opts.stride < 1:
-        raise FrontdiagError(f"--stride {opts.stride}: must be >= 1")
-    if opts.max_frames is not None and opts.max_frames < 1:
-        raise FrontdiagError(f"--max-frames {opts.max_frames}: must be >= 1")
+    check_selection(opts)
     if opts.jobs < 1:
-        raise FrontdiagError(f"--jobs {opts.jobs}: must be >= 1")
+        raise ConfigError(f"--jobs {opts.jobs}: must be >= 1")
     path = Path(path)
     t_start = time.perf_counter()
     ruleset = None

@@ -78,5 +78,13 @@ class RuleError(FrontdiagError):
         super().__init__(f"{source}: {problem}")
 
 
+class OutputError(FrontdiagError):
+    """An output location (--out, --junit, ...) cannot be written, or would overwrite an input."""
+
+    def __init__(self, path: Path | str, problem: str, *, hint: str | None = None) -> None:
+        self.path = Path(path)
+        super().__init__(f"{path}: {problem}", hint=hint)
+
+
 class OptionalDependencyError(FrontdiagError):
     """An optional heavy dependency (e.g. Open3D) is not installed or cannot load."""

@@ -8,13 +8,16 @@ stay lists in parquet and become ``;``-separated strings in CSV.
 from __future__ import annotations
 
 import json
+import os
+import tempfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from frontdiag.errors import ConfigError, RecordingError
+from frontdiag.errors import ConfigError, OutputError, RecordingError
 
 LIST_COLUMNS = ("conditions", "rules")
 VECTOR_COLUMNS = ("lidar_weak_vec",)
@@ -27,24 +30,68 @@ def _vector(v: Any) -> list[float] | None:
     return None
 
 
-def prepare_out_dir(out: Path, inputs: list[Path]) -> Path:
-    """Create the result directory; refuse to write into the input recording."""
-    out = Path(out)
+RESULT_FILES = ("frames.parquet", "frames.csv", "manifest.json", "episodes.parquet", "rules.json")
+"""Every file ``analyze --out`` may write; each must be writable before the recording is read."""
+
+
+def _inside(path: Path, inputs: list[Path]) -> Path | None:
+    """The input that ``path`` is, or lies inside (an input folder), if any."""
+    target = path.resolve()
     for inp in inputs:
         try:
             inp_r = inp.resolve()
         except OSError:
             continue
-        if out.resolve() == inp_r or (inp_r.is_dir() and inp_r in out.resolve().parents):
-            raise ConfigError(f"--out {out}: would write inside the input recording {inp}; "
-                              "choose another directory")
+        if target == inp_r or inp_r in target.parents:
+            return inp
+    return None
+
+
+def _probe_dir(folder: Path, option: str) -> None:
+    """Raise OutputError unless a file can be created in ``folder`` (works for root as well)."""
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".frontdiag-probe-", dir=folder)
+    except OSError as exc:
+        raise OutputError(folder, f"{option}: cannot write here ({exc.strerror or exc})",
+                          hint="choose a folder you can write to") from exc
+    os.close(fd)
+    os.unlink(probe)
+
+
+def _make_dir(folder: Path, option: str) -> None:
+    for parent in (folder, *folder.parents):
+        if parent.exists():
+            if not parent.is_dir():
+                raise OutputError(folder, f"{option}: {parent} is a file, not a folder",
+                                  hint="choose another location")
+            break
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(folder, f"{option}: cannot create the folder ({exc.strerror or exc})",
+                          hint="choose a folder you can write to") from exc
+
+
+def prepare_out_dir(out: Path, inputs: list[Path], files: tuple[str, ...] = RESULT_FILES) -> Path:
+    """Create the result directory and check it can take every result file, before any work.
+
+    Refuses a directory that is, or lies inside, an input recording.
+    """
+    out = Path(out)
+    inp = _inside(out, inputs)
+    if inp is not None:
+        raise OutputError(out, f"--out would write inside the input recording {inp}",
+                          hint="choose another directory")
     if out.exists() and not out.is_dir():
-        raise ConfigError(f"--out {out}: exists and is not a directory")
-    out.mkdir(parents=True, exist_ok=True)
+        raise OutputError(out, "--out exists and is not a directory",
+                          hint="choose another directory")
+    _make_dir(out, "--out")
+    for name in files:
+        if (out / name).is_dir():
+            raise OutputError(out / name, "--out: a folder is in the way of this result file",
+                              hint="remove it or choose another --out")
+    _probe_dir(out, "--out")
     return out
-
-
-RESULT_FILES = ("frames.parquet", "frames.csv", "manifest.json", "episodes.parquet")
 
 
 def refuse_overwrite(out: Path, force: bool) -> None:
@@ -64,6 +111,32 @@ def refuse_overwrite(out: Path, force: bool) -> None:
         raise ConfigError(f"--out {out}: already holds a result ({', '.join(found)}"
                           + (f", from {src}" if src else "") + ")",
                           hint="pass --force to replace it, or choose another --out directory")
+
+
+def check_output_file(path: Path, option: str, inputs: list[Path]) -> Path:
+    """Check that a single output file (``--junit``) can be written and is not an input."""
+    path = Path(path)
+    inp = _inside(path, inputs)
+    if inp is not None:
+        raise OutputError(path, f"{option} would overwrite the input recording {inp}"
+                          if path.resolve() == inp.resolve() else
+                          f"{option} would write inside the input recording {inp}",
+                          hint="choose another file name")
+    if path.is_dir():
+        raise OutputError(path, f"{option}: is a folder, not a file", hint="name a file")
+    _make_dir(path.parent, option)
+    _probe_dir(path.parent, option)
+    return path
+
+
+def guarded_write(path: Path, write: Callable[[], Any]) -> Any:
+    """Run ``write``; an OS failure (disk full, permissions changed) becomes one OutputError."""
+    try:
+        return write()
+    except OSError as exc:
+        raise OutputError(path, f"cannot write ({exc.strerror or exc})",
+                          hint="the analysis itself finished; free space or choose another "
+                               "location and rerun") from exc
 
 
 def _csv_frame(table: pd.DataFrame) -> pd.DataFrame:

@@ -18,7 +18,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
-from frontdiag.errors import DecodeError, FrontdiagError
+from frontdiag.errors import ConfigError, DecodeError, FrontdiagError
 from frontdiag.io.decode import decode_camera, decode_lidar, header_stamp_ns, odometry_pose
 from frontdiag.io.images import GrayConverter
 from frontdiag.io.readers import Recording
@@ -147,18 +147,27 @@ class SensorStream:
             self.stats.first_error = str(exc)
 
 
+_FOREVER_S = 1e9  # seconds (32 years): a bound that keeps nanosecond times in 64 bits
+
+
 def time_window(rec: Recording, opts: Any) -> tuple[int | None, int | None]:
-    """--start/--end as log times (ns), validated."""
-    start = rec.start_ns
+    """--start/--end as log times (ns); the options were validated by ``api.check_selection``.
+
+    A start past the end of the recording is an error naming its duration; an end past it reads
+    to the end.
+    """
+    start, end = rec.start_ns, rec.end_ns
     s = e = None
+    duration = (end - start) / 1e9 if start is not None and end is not None else None
     if opts.start_s is not None:
-        if opts.start_s < 0:
-            raise FrontdiagError(f"--start {opts.start_s}: must be >= 0 seconds")
-        s = (start or 0) + round(opts.start_s * 1e9)
+        if duration is not None and opts.start_s > duration:
+            raise ConfigError(f"--start {opts.start_s:g}: {rec.path} is only {duration:.3f} s "
+                              "long", hint="see `frontdiag info` for its time span")
+        s = (start or 0) + round(min(opts.start_s, _FOREVER_S) * 1e9)
     if opts.end_s is not None:
-        if opts.start_s is not None and opts.end_s <= opts.start_s:
-            raise FrontdiagError(f"--end {opts.end_s} must be after --start {opts.start_s}")
-        e = (start or 0) + round(opts.end_s * 1e9)
+        e = (start or 0) + round(min(opts.end_s, _FOREVER_S) * 1e9)
+        if end is not None:
+            e = min(e, end)
     return s, e
 
 

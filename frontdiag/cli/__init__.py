@@ -12,6 +12,7 @@ from typing import ClassVar
 
 import typer
 from rich.console import Console
+from rich.markup import escape
 from typer import Abort as _Abort
 from typer import Exit as _Exit
 
@@ -163,9 +164,9 @@ def main(argv: list[str] | None = None) -> int:
         ConsoleWarnings.flush(superseded_by=str(exc))
         if debug:
             err.print_exception()
-        err.print(f"[bold red]error:[/] {exc}", highlight=False, markup=True, soft_wrap=True)
+        err.print(f"[bold red]error:[/] {escape(str(exc))}", highlight=False, soft_wrap=True)
         if exc.hint:
-            err.print(f"  {exc.hint}", highlight=False, soft_wrap=True)
+            err.print(f"  {escape(exc.hint)}", highlight=False, soft_wrap=True)
         return exc.exit_code
     except (_Abort, KeyboardInterrupt):
         err.print("interrupted")
@@ -181,7 +182,7 @@ def main(argv: list[str] | None = None) -> int:
         else:
             exc_type, exc_val, _ = sys.exc_info()
             err.print(f"[bold red]internal error:[/] {exc_type.__name__ if exc_type else ''}: "
-                      f"{exc_val} (a bug in frontdiag; rerun with --debug for the traceback)",
+                      f"{escape(str(exc_val))} (a bug in frontdiag; rerun with --debug for the traceback)",
                       highlight=False, soft_wrap=True)
         return EXIT_INTERNAL
     finally:

@@ -101,7 +101,7 @@ def render_analysis(console: Console, result: Any, out_dir: Path | None,
     table = result.table
     man = result.manifest
     topics = man["topics"]
-    src = f"{man['input']['path']}  [dim]({man['input']['backend']})[/]"
+    src = f"{escape(str(man['input']['path']))}  [dim]({man['input']['backend']})[/]"
     console.print(f"[bold]frontdiag analyze[/] {src}")
     for sensor, spec in (("camera", CAMERA_SUMMARY), ("lidar", LIDAR_SUMMARY)):
         rows = table[table["sensor"] == sensor] if not table.empty else table
@@ -109,7 +109,7 @@ def render_analysis(console: Console, result: Any, out_dir: Path | None,
             continue
         topic = topics.get(sensor)
         status = ", ".join(f"{k} {v}" for k, v in rows["status"].value_counts().items())
-        t = Table(title=f"{sensor} {topic}: {len(rows)} frames ({status})",
+        t = Table(title=escape(f"{sensor} {topic}: {len(rows)} frames ({status})"),
                   title_justify="left", show_edge=False, header_style="bold")
         t.add_column("metric")
         for c in ("p10", "median", "p90"):
@@ -128,9 +128,9 @@ def render_analysis(console: Console, result: Any, out_dir: Path | None,
             if line:
                 console.print(f"[dim]{escape(line)}[/]", highlight=False)
     if man.get("intrinsics"):
-        console.print(f"[dim]intrinsics: {man['intrinsics']['source']}[/]")
+        console.print(f"[dim]intrinsics: {escape(str(man['intrinsics']['source']))}[/]")
     for note in result.notes:
-        console.print(f"[yellow]note:[/] {note}", highlight=False)
+        console.print(f"[yellow]note:[/] {escape(note)}", highlight=False)
     if written:
         console.print("[green]wrote[/] " + ", ".join(escape(str(p)) for p in written),
                       highlight=False)

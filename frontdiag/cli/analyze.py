@@ -44,6 +44,10 @@ Exit codes: 0 nothing at or above --fail-on, 1 a gate failed, 2 bad input / usag
 """
 
 
+MAX_FEATURES = 1_000_000  # OpenCV takes a C int; beyond this no frame has that many keypoints
+MAX_RANSAC_ITERS = 1_000_000
+
+
 def register(app: typer.Typer) -> None:
     app.command("analyze", help=HELP, epilog=EPILOG, no_args_is_help=True)(analyze_cmd)
 
@@ -134,13 +138,12 @@ def analyze_cmd(
 ) -> int:
     from frontdiag.api import AnalysisOptions
     from frontdiag.cli._console import make_console
-    from frontdiag.errors import EXIT_INTERRUPTED, EXIT_OK, ConfigError
+    from frontdiag.errors import EXIT_INTERRUPTED, EXIT_OK, ConfigError, FrontdiagError
     from frontdiag.output import (
+        check_output_file,
+        guarded_write,
         prepare_out_dir,
         refuse_overwrite,
-        write_frontend_config,
-        write_manifest,
-        write_table,
     )
 
     if fail_on not in ("warn", "fail", "never"):
@@ -153,8 +156,10 @@ def analyze_cmd(
         raise ConfigError(f"--features {features}: need at least 50")
     if ratio is not None and not 0.0 < ratio <= 1.0:
         raise ConfigError(f"--ratio {ratio:g}: choose a value in (0, 1]")
-    if ransac_iters is not None and ransac_iters < 1:
-        raise ConfigError(f"--ransac-iters {ransac_iters}: need at least 1")
+    if ransac_iters is not None and not 1 <= ransac_iters <= MAX_RANSAC_ITERS:
+        raise ConfigError(f"--ransac-iters {ransac_iters}: choose 1 to {MAX_RANSAC_ITERS}")
+    if features is not None and features > MAX_FEATURES:
+        raise ConfigError(f"--features {features}: at most {MAX_FEATURES}")
     if no_default_rules and rules_dir is None:
         raise ConfigError("--no-default-rules needs --rules DIR (the rules to use instead)")
     from frontdiag.config import load_config
@@ -171,7 +176,10 @@ def analyze_cmd(
     log = logs[0]
     if out is not None and not fleet:
         refuse_overwrite(out, force)
+    # every output location is checked before the recording is read, so a bad one costs nothing
     out_dir = None if out is None or fleet else prepare_out_dir(out, [log])
+    if junit is not None and not fleet:
+        check_output_file(junit, "--junit", [log])
     opts = AnalysisOptions(
         camera_topic=camera_topic, lidar_topic=lidar_topic, odom_topic=odom_topic,
         use_camera=not no_camera, use_lidar=not no_lidar, intrinsics=intrinsics,
@@ -219,14 +227,7 @@ def analyze_cmd(
         gate_result = _incomplete(gate_result, result)
     written: list[Path] = []
     if out_dir is not None:
-        written += write_table(out_dir, result.table, csv=(fmt == "csv"))
-        written.append(write_manifest(out_dir, result.manifest))
-        written.append(write_frontend_config(out_dir, result.manifest))
-        if result.verdicts is not None:
-            from frontdiag.report import write_episodes, write_rules_snapshot
-
-            written.append(write_episodes(out_dir, result.verdicts))
-            written.append(write_rules_snapshot(out_dir, result.ruleset))
+        written += guarded_write(out_dir, lambda: _write_results(out_dir, result, fmt))
     if diag is not None:
         diag.finish(result.table, result.verdicts, result.ruleset)
         written.append(diag.path)
@@ -237,8 +238,8 @@ def analyze_cmd(
     if junit is not None and gate_result is not None:
         from frontdiag.report import write_junit
 
-        written.append(write_junit(junit, result.verdicts, gate_result,
-                                   suite=_suite_name(log)))
+        written.append(guarded_write(junit, lambda: write_junit(
+            junit, result.verdicts, gate_result, suite=_suite_name(log))))
     if as_json:
         typer.echo(_json_summary(result, gate_result, written))
     elif not quiet:
@@ -264,7 +265,10 @@ def analyze_cmd(
                   + ("" if written else " in memory only (no --out, nothing saved)"))
         return EXIT_INTERRUPTED
     if result.fault is not None:
-        raise result.fault
+        # one line: the file, the damage, and what was kept
+        kept = f"{len(result.table)} frames before it were analysed"
+        kept += f" and written to {out_dir}" if out_dir is not None else " (pass --out to keep them)"
+        raise FrontdiagError(f"{result.fault}; {kept}")
     return gate_result.exit_code if gate_result is not None else EXIT_OK
 
 
@@ -292,6 +296,20 @@ def _incomplete(gate_result: Any, result: Any) -> Any:
                    incomplete=why)
 
 
+def _write_results(out_dir: Path, result: Any, fmt: str) -> list[Path]:
+    from frontdiag.output import write_frontend_config, write_manifest, write_table
+
+    written = list(write_table(out_dir, result.table, csv=(fmt == "csv")))
+    written.append(write_manifest(out_dir, result.manifest))
+    written.append(write_frontend_config(out_dir, result.manifest))
+    if result.verdicts is not None:
+        from frontdiag.report import write_episodes, write_rules_snapshot
+
+        written.append(write_episodes(out_dir, result.verdicts))
+        written.append(write_rules_snapshot(out_dir, result.ruleset))
+    return written
+
+
 def _split(values: list[str] | None) -> list[str] | None:
     if not values:
         return None
@@ -299,6 +317,7 @@ def _split(values: list[str] | None) -> list[str] | None:
 
 
 def _run_with_progress(log: Path, opts: Any, err: Any, show: bool, sink: Any = None) -> Any:
+    from rich.markup import escape
     from rich.progress import (
         BarColumn,
         MofNCompleteColumn,
@@ -315,7 +334,7 @@ def _run_with_progress(log: Path, opts: Any, err: Any, show: bool, sink: Any = N
     with Progress(TextColumn("[bold]analyze[/] {task.description}"), BarColumn(),
                   MofNCompleteColumn(), TextColumn("frames"), TimeElapsedColumn(),
                   TimeRemainingColumn(), console=err, transient=True) as bar:
-        task = bar.add_task(log.name, total=None)
+        task = bar.add_task(escape(log.name), total=None)
 
         def progress(done: int, expected: int | None) -> None:
             bar.update(task, completed=done, total=expected)

@@ -30,6 +30,7 @@ def info_cmd(
     as_json: bool = typer.Option(False, "--json", help="Machine-readable output on stdout "
                                  "(schema docs/schemas/info.json)."),
 ) -> int:
+    from rich.markup import escape
     from rich.table import Table
 
     from frontdiag.cli._console import make_console
@@ -43,25 +44,27 @@ def info_cmd(
         return _damage_exit(rep)
     con = make_console()
     dur = f"{rep.duration_s:.2f} s" if rep.duration_s is not None else "unknown"
-    con.print(f"[bold]{rep.path}[/]  [dim]{rep.backend} reader[/]  duration {dur}")
+    con.print(f"[bold]{escape(str(rep.path))}[/]  [dim]{rep.backend} reader[/]  duration {dur}")
     t = Table(show_edge=False, header_style="bold")
     for col, just in (("topic", "left"), ("type", "left"), ("messages", "right"),
                       ("rate (Hz)", "right"), ("max gap (s)", "right"), ("detail", "left")):
         t.add_column(col, justify=just)  # type: ignore[arg-type]
     for tr in rep.topics:
-        t.add_row(tr.topic, tr.msgtype, "?" if tr.count is None else str(tr.count),
+        t.add_row(escape(tr.topic), escape(tr.msgtype), "?" if tr.count is None else str(tr.count),
                   "—" if tr.rate_hz is None else f"{tr.rate_hz:.2f}",
-                  "—" if tr.max_gap_s is None else f"{tr.max_gap_s:.3f}", tr.detail)
+                  "—" if tr.max_gap_s is None else f"{tr.max_gap_s:.3f}", escape(tr.detail))
     con.print(t)
     if rep.choice is not None:
         c = rep.choice
         con.print("[bold]analyze would read[/]: "
-                  f"camera {c.camera or '—'} (CameraInfo {c.camera_info or '—'}), "
-                  f"LiDAR {c.lidar or '—'}, odometry {c.odometry or '—'}", highlight=False)
+                  + escape(f"camera {c.camera or '—'} (CameraInfo {c.camera_info or '—'}), "
+                           f"LiDAR {c.lidar or '—'}, odometry {c.odometry or '—'}"),
+                  highlight=False)
     else:
-        con.print(f"[bold]analyze cannot start on its own[/]: {rep.choice_error}", highlight=False)
+        con.print(f"[bold]analyze cannot start on its own[/]: {escape(str(rep.choice_error))}",
+                  highlight=False)
     for odd in rep.oddities:
-        con.print(f"[yellow]odd:[/] {odd}", highlight=False)
+        con.print(f"[yellow]odd:[/] {escape(odd)}", highlight=False)
     return _damage_exit(rep)
 
 

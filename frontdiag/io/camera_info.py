@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -24,26 +25,71 @@ def _field(msg: Any, name: str) -> Any:
     return getattr(msg, name.upper())
 
 
-def from_camera_info(msg: Any, topic: str) -> Intrinsics | None:
-    """Intrinsics from a CameraInfo message; None when K is unset (all zeros)."""
-    K = np.asarray(_field(msg, "k"), dtype=np.float64).reshape(3, 3)
-    if K[0, 0] <= 0 or K[1, 1] <= 0:
+def from_camera_info(msg: Any, topic: str, notes: list[str] | None = None) -> Intrinsics | None:
+    """Intrinsics from a CameraInfo message; None when K is unset (all zeros).
+
+    Raises ConfigError naming the topic and field for a calibration no camera model can use
+    (NaN or infinite values, a distortion vector of the wrong length, an unknown model with
+    non-zero coefficients).
+    """
+    where = f"CameraInfo on {topic}"
+    try:
+        K = np.asarray(_field(msg, "k"), dtype=np.float64).reshape(3, 3)
+        D = np.asarray(_field(msg, "d"), dtype=np.float64).reshape(-1)
+    except (ValueError, TypeError) as exc:
+        raise ConfigError(f"{where}: field K must hold 9 numbers ({_first_line(exc)})",
+                          hint=f"{HOW_TO_PASS_K} to override it") from exc
+    if not np.isnan(K).any() and (K[0, 0] <= 0 or K[1, 1] <= 0):
         return None
-    D = np.asarray(_field(msg, "d"), dtype=np.float64).reshape(-1)
-    model = str(msg.distortion_model).strip().lower()
-    return Intrinsics(K=K, D=D, model=_model(model, D), width=int(msg.width),
-                      height=int(msg.height), source=f"CameraInfo on {topic}")
+    return checked(Intrinsics(K=K, D=D, model=str(msg.distortion_model), width=int(msg.width),
+                              height=int(msg.height), source=where), notes)
 
 
-def _model(model: str, D: np.ndarray) -> str:
-    if model == "fisheye":
-        return "equidistant"
-    if model in ("", "none") and not np.any(D):
-        return "none"
-    if model not in KNOWN_MODELS:
-        raise ConfigError(f"distortion model {model!r} is not supported "
-                          "(plumb_bob, rational_polynomial, equidistant)")
-    return model or "plumb_bob"
+# Coefficient counts OpenCV's models take (ROS writes 5 for plumb_bob, 8 for rational_polynomial).
+D_COUNTS = {"plumb_bob": (4, 5, 8, 12, 14), "rational_polynomial": (4, 5, 8, 12, 14),
+            "equidistant": (4,)}
+
+
+def checked(intr: Intrinsics, notes: list[str] | None = None) -> Intrinsics:
+    """Validate and normalise a calibration, or raise ConfigError naming its source and field.
+
+    * K must be finite with fx, fy > 0; D must be finite.
+    * ``fisheye`` is ``equidistant``; an empty or all-zero D means no distortion, whatever the
+      model is called (RealSense writes "Brown Conrady" with zeros): model ``none``, with a note
+      when the name is not one of the ROS models.
+    * A D longer than the model takes is accepted when the extra coefficients are zero.
+    """
+    src = intr.source
+    hint = f"{HOW_TO_PASS_K} to override it" if not src.startswith("--") else None
+    K = np.asarray(intr.K, dtype=np.float64)
+    D = np.asarray(intr.D, dtype=np.float64).reshape(-1)
+    if not np.all(np.isfinite(K)):
+        raise ConfigError(f"{src}: K holds NaN or infinite values", hint=hint)
+    if K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise ConfigError(f"{src}: K has fx or fy <= 0", hint=hint)
+    if not np.all(np.isfinite(D)):
+        raise ConfigError(f"{src}: D holds NaN or infinite values", hint=hint)
+    model = intr.model.strip().lower()
+    model = "equidistant" if model == "fisheye" else model
+    if not np.any(D):
+        if model not in KNOWN_MODELS and notes is not None:
+            notes.append(f"{src}: distortion model {intr.model!r} is not a ROS model; its "
+                         "coefficients are all zero, so no distortion is applied")
+        return replace(intr, K=K, D=np.zeros(0), model="none")
+    model = model or "plumb_bob"
+    if model not in D_COUNTS:
+        raise ConfigError(f"{src}: distortion model {intr.model!r} is not supported "
+                          "(plumb_bob, rational_polynomial, equidistant)", hint=hint)
+    counts = D_COUNTS[model]
+    if D.size not in counts:
+        last = int(np.flatnonzero(D)[-1]) + 1
+        fits = [n for n in counts if last <= n <= D.size]
+        if not fits:
+            raise ConfigError(f"{src}: distortion model {model} takes "
+                              f"{' or '.join(map(str, counts))} coefficients in D, got {D.size}",
+                              hint=hint)
+        D = D[:fits[-1]]
+    return replace(intr, K=K, D=D, model=model)
 
 
 def parse_intrinsics(text: str) -> Intrinsics:
@@ -52,15 +98,15 @@ def parse_intrinsics(text: str) -> Intrinsics:
         vals = [float(v) for v in text.replace(" ", "").split(",")]
     except ValueError:
         vals = []
-    if len(vals) != 4 or vals[0] <= 0 or vals[1] <= 0:
-        raise ConfigError(f"--intrinsics {text!r}: expected four numbers fx,fy,cx,cy with "
-                          "fx, fy > 0, e.g. --intrinsics 525,525,319.5,239.5")
+    if len(vals) != 4 or not all(np.isfinite(vals)) or vals[0] <= 0 or vals[1] <= 0:
+        raise ConfigError(f"--intrinsics {text!r}: expected four finite numbers fx,fy,cx,cy "
+                          "with fx, fy > 0, e.g. --intrinsics 525,525,319.5,239.5")
     fx, fy, cx, cy = vals
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     return Intrinsics(K=K, model="none", source="--intrinsics")
 
 
-def load_camera_info_yaml(path: Path | str) -> Intrinsics:
+def load_camera_info_yaml(path: Path | str, notes: list[str] | None = None) -> Intrinsics:
     """A ROS ``camera_info`` YAML (camera_calibration / camera_info_manager format)."""
     import yaml  # PyYAML comes with rosbags
 
@@ -70,33 +116,43 @@ def load_camera_info_yaml(path: Path | str) -> Intrinsics:
     except FileNotFoundError as exc:
         raise ConfigError(f"--camera-info {path}: no such file") from exc
     except Exception as exc:
-        raise ConfigError(f"--camera-info {path}: not valid YAML ({exc})") from exc
-    if not isinstance(doc, dict) or "camera_matrix" not in doc:
+        raise ConfigError(f"--camera-info {path}: not valid YAML ({_first_line(exc)})") from exc
+    if not isinstance(doc, dict) or not isinstance(doc.get("camera_matrix"), dict):
         raise ConfigError(f"--camera-info {path}: missing field camera_matrix "
                           "(expected a ROS camera_info YAML)")
     try:
-        K = np.asarray(doc["camera_matrix"]["data"], dtype=np.float64).reshape(3, 3)
-        D = np.asarray((doc.get("distortion_coefficients") or {}).get("data", []),
+        K = np.asarray(doc["camera_matrix"].get("data"), dtype=np.float64).reshape(3, 3)
+        dist = doc.get("distortion_coefficients") or {}
+        D = np.asarray(dist.get("data", []) if isinstance(dist, dict) else [],
                        dtype=np.float64).reshape(-1)
+        width, height = int(doc.get("image_width", 0) or 0), int(doc.get("image_height", 0) or 0)
     except Exception as exc:
         raise ConfigError(f"--camera-info {path}: field camera_matrix.data must hold 9 "
-                          f"numbers ({exc})") from exc
-    if K[0, 0] <= 0 or K[1, 1] <= 0:
-        raise ConfigError(f"--camera-info {path}: camera_matrix has fx or fy <= 0")
-    model = str(doc.get("distortion_model", "plumb_bob")).strip().lower()
-    return Intrinsics(K=K, D=D, model=_model(model, D), width=int(doc.get("image_width", 0)),
-                      height=int(doc.get("image_height", 0)), source=f"--camera-info {path}")
+                          f"numbers ({_first_line(exc)})") from exc
+    model = str(doc.get("distortion_model", "plumb_bob"))
+    return checked(Intrinsics(K=K, D=D, model=model, width=width, height=height,
+                              source=f"--camera-info {path}"), notes)
+
+
+def _first_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0][:200] if text else type(exc).__name__
 
 
 def camera_info_topic_for(image_topic: str, info_topics: list[str]) -> str | None:
-    """The CameraInfo topic that belongs to an image topic (same namespace), if any."""
+    """The CameraInfo topic that belongs to an image topic (same namespace), if any.
+
+    ROS drivers put it beside the image (``/cam/image_raw`` -> ``/cam/camera_info``); the
+    RealSense SDK's bag layout keeps it one level down (``.../Color_0/image/data`` ->
+    ``.../Color_0/info/camera_info``).
+    """
     if not info_topics:
         return None
     parts = image_topic.rstrip("/").split("/")
     # /cam/image_raw -> /cam ; /cam/image_raw/compressed -> /cam
     for depth in range(len(parts) - 1, 0, -1):
         ns = "/".join(parts[:depth])
-        cand = f"{ns}/camera_info"
-        if cand in info_topics:
-            return cand
+        for cand in (f"{ns}/camera_info", f"{ns}/info/camera_info"):
+            if cand in info_topics:
+                return cand
     return info_topics[0] if len(info_topics) == 1 else None

@@ -50,7 +50,7 @@ def render_console_summary(console: Console, result: Verdicts, gate_result: Gate
     if cond:
         table = Table("condition", "frames", "share", "episodes", box=None, pad_edge=False)
         for name, c in cond.items():
-            table.add_row(name, str(c["frames"]), f"{c['share']:.1%}", str(c["episodes"]))
+            table.add_row(escape(name), str(c["frames"]), f"{c['share']:.1%}", str(c["episodes"]))
         console.print(table)
     eps = result.episodes
     if not eps.empty:
@@ -58,7 +58,7 @@ def render_console_summary(console: Console, result: Verdicts, gate_result: Gate
                       f"{len(eps)}):")
         for _, e in eps.head(max_episodes).iterrows():
             style = _STYLE.get(str(e["severity"]), "")
-            console.print(f"  [{style}]{e['severity']:>4}[/] {e['rule']} {escape(str(e['summary']))}",
+            console.print(f"  [{style}]{e['severity']:>4}[/] {escape(str(e['rule']))} {escape(str(e['summary']))}",
                           highlight=False, soft_wrap=True)
             if reanalyse_cmd is not None:
                 console.print(f"       [dim]{escape(reanalyse_cmd(e))}[/]", highlight=False,
@@ -68,7 +68,7 @@ def render_console_summary(console: Console, result: Verdicts, gate_result: Gate
             mark = "[dim]not evaluated[/]"
         else:
             mark = f"[{_STYLE[f.severity]}]{f.severity}[/]" if f.fired else "[green]ok[/]"
-        console.print(f"  run {f.rule} {mark}: {escape(f.message)}", highlight=False, soft_wrap=True)
+        console.print(f"  run {escape(f.rule)} {mark}: {escape(f.message)}", highlight=False, soft_wrap=True)
     if gate_result.incomplete:
         console.print(f"[bold yellow]gate not passed[/] (exit {gate_result.exit_code}): "
                       f"{escape(gate_result.incomplete)}", highlight=False, soft_wrap=True)
