@@ -17,7 +17,13 @@ import numpy as np
 import pandas as pd
 
 from frontdiag import __version__
-from frontdiag.errors import ConfigError, DecodeError, FrontdiagError, RecordingError
+from frontdiag.errors import (
+    ConfigError,
+    DecodeError,
+    FrontdiagError,
+    RecordingError,
+    TopicError,
+)
 from frontdiag.io.camera_info import (
     HOW_TO_PASS_K,
     from_camera_info,
@@ -187,9 +193,14 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
     notes: list[str] = []
     with open_recording(path) as rec:
         topic_infos = rec.topics
-        choice = choose_topics(topic_infos, camera_topic=opts.camera_topic,
-                               lidar_topic=opts.lidar_topic, odom_topic=opts.odom_topic,
-                               use_camera=opts.use_camera, use_lidar=opts.use_lidar)
+        try:
+            choice = choose_topics(topic_infos, camera_topic=opts.camera_topic,
+                                   lidar_topic=opts.lidar_topic, odom_topic=opts.odom_topic,
+                                   use_camera=opts.use_camera, use_lidar=opts.use_lidar)
+        except TopicError:
+            if rec.fault is not None:  # the damage hid the topics: say so, not "no topics"
+                raise RecordingError(path, _problem(path, rec.fault.message)) from None
+            raise
         notes.extend(choice.notes)
         intr = resolve_intrinsics(rec, choice, opts, notes) if choice.camera else None
         if choice.camera and intr is None:
@@ -208,8 +219,12 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
                              sink=sink)
         fault = _stream_notes(path, rec, run, notes)
         table = _table(run.rows)
+        coverage = _coverage(run, table)
+        if fault is None and not run.interrupted:
+            fault = _nothing_analysed(coverage, counts, opts)
         manifest = _manifest(path, rec, choice, intr, opts, run.cam, run.lid, notes,
                              fault, run.interrupted, time.perf_counter() - t_start)
+        manifest["coverage"] = coverage
     table.attrs["manifest"] = manifest
     verdicts = None
     if ruleset is not None:
@@ -231,7 +246,7 @@ def _stream_notes(path: Path, rec: Recording, run: StreamRun,
     the notes its counts call for."""
     fault = run.fault
     if rec.fault is not None and fault is None:
-        fault = RecordingError(path, rec.fault.message.split(": ", 1)[-1],
+        fault = RecordingError(path, _problem(path, rec.fault.message),
                                hint="the frames before the damage were analysed and kept")
     for stream in (run.cam, run.lid):
         if stream is None:
@@ -254,6 +269,58 @@ def _stream_notes(path: Path, rec: Recording, run: StreamRun,
             notes.append(f"{stream.topic}: {st.gaps} gap(s) in the recording; the frontend "
                          f"started afresh after each (rows with status {GAP_STATUS})")
     return fault
+
+
+def _problem(path: Path, message: str) -> str:
+    """A reader's fault message without the leading path (the error adds it back)."""
+    for prefix in (f"{path}: ", f"{path}/"):  # the recording, or a file inside its folder
+        if message.startswith(prefix):
+            return message[len(prefix):]
+    return message
+
+
+NO_RESULT = ("too_few_points",)
+"""Row statuses that carry no measurement: the frame was read but nothing could be evaluated."""
+
+
+def _coverage(run: StreamRun, table: pd.DataFrame) -> dict[str, dict[str, Any]]:
+    """Per sensor topic: frames present (in the --start/--end window), rows, and the frames
+    that produced a measurement (rows whose status is not in NO_RESULT and not an error)."""
+    out: dict[str, dict[str, Any]] = {}
+    for sensor, stream in (("camera", run.cam), ("lidar", run.lid)):
+        if stream is None:
+            continue
+        rows = table[table["topic"] == stream.topic] if not table.empty else table
+        status = rows["status"].astype(str) if not rows.empty else pd.Series(dtype=str)
+        empty = status.isin(NO_RESULT) | status.str.startswith("error")
+        present = int(stream.stats.messages)
+        evaluated = int((~empty).sum())
+        out[stream.topic] = {
+            "sensor": sensor, "frames_present": present, "rows": len(rows),
+            "frames_analysed": evaluated,
+            "share": round(evaluated / present, 4) if present else 0.0,
+            "no_result": {str(k): int(v) for k, v in status[empty].value_counts().items()},
+        }
+    return out
+
+
+def _nothing_analysed(coverage: dict[str, dict[str, Any]], counts: dict[str, int | None],
+                      opts: AnalysisOptions) -> FrontdiagError | None:
+    """An analysis that measured nothing on a sensor it read is an error, never a pass."""
+    for topic, c in coverage.items():
+        if c["frames_analysed"]:
+            continue
+        if c["frames_present"] == 0:
+            windowed = opts.start_s is not None or opts.end_s is not None
+            why = ("no message between --start and --end" if windowed and counts.get(topic)
+                   else "the topic has no messages")
+        elif c["no_result"]:
+            why = "every frame: " + ", ".join(f"{k} ({v})" for k, v in c["no_result"].items())
+        else:
+            why = "no frame could be decoded"
+        return FrontdiagError(f"topic {topic}: nothing analysed ({why})",
+                              hint="see `frontdiag info` for what the recording holds")
+    return None
 
 
 def _table(rows: list[dict[str, Any]]) -> pd.DataFrame:

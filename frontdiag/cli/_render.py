@@ -127,6 +127,10 @@ def render_analysis(console: Console, result: Any, out_dir: Path | None,
             line = weak_direction_line(rows)
             if line:
                 console.print(f"[dim]{escape(line)}[/]", highlight=False)
+    for topic, c in (man.get("coverage") or {}).items():
+        line = escape(f"{c['sensor']} {topic}: {c['frames_analysed']} of {c['frames_present']} "
+                      "frames measured")
+        console.print(f"[dim]coverage[/] {line}", highlight=False)
     if man.get("intrinsics"):
         console.print(f"[dim]intrinsics: {escape(str(man['intrinsics']['source']))}[/]")
     for note in result.notes:

@@ -138,7 +138,13 @@ def analyze_cmd(
 ) -> int:
     from frontdiag.api import AnalysisOptions
     from frontdiag.cli._console import make_console
-    from frontdiag.errors import EXIT_INTERRUPTED, EXIT_OK, ConfigError, FrontdiagError
+    from frontdiag.errors import (
+        EXIT_INTERRUPTED,
+        EXIT_OK,
+        ConfigError,
+        FrontdiagError,
+        RecordingError,
+    )
     from frontdiag.output import (
         check_output_file,
         guarded_write,
@@ -212,10 +218,12 @@ def analyze_cmd(
         diag.open()
     try:
         result = _run_with_progress(log, opts, err, show=not quiet and not as_json, sink=diag)
-    except BaseException:
+    except BaseException as exc:
         if diag is not None:  # nothing analysed: no half-written file left behind
             diag.close()
             diag.path.unlink(missing_ok=True)
+        if isinstance(exc, FrontdiagError):
+            raise _naming(log, exc) from exc
         raise
     gate_result = None
     if result.verdicts is not None:
@@ -264,11 +272,13 @@ def analyze_cmd(
         err.print("[yellow]interrupted[/]: the frames analysed so far were kept"
                   + ("" if written else " in memory only (no --out, nothing saved)"))
         return EXIT_INTERRUPTED
-    if result.fault is not None:
+    if isinstance(result.fault, RecordingError):
         # one line: the file, the damage, and what was kept
         kept = f"{len(result.table)} frames before it were analysed"
         kept += f" and written to {out_dir}" if out_dir is not None else " (pass --out to keep them)"
         raise FrontdiagError(f"{result.fault}; {kept}")
+    if result.fault is not None:
+        raise _naming(log, result.fault)
     return gate_result.exit_code if gate_result is not None else EXIT_OK
 
 
@@ -294,6 +304,18 @@ def _incomplete(gate_result: Any, result: Any) -> Any:
             getattr(result.fault, "exit_code", 2)
     return replace(gate_result, exit_code=code, reasons=[*gate_result.reasons, why],
                    incomplete=why)
+
+
+def _naming(log: Path, exc: Any) -> Any:
+    """The error itself when it names the recording; else the same error class and exit code
+    with the recording's path in front, so every failure says which input it is about."""
+    if str(log) in str(exc) or str(exc).startswith("--"):  # named, or about an option
+        return exc
+    from frontdiag.errors import FrontdiagError
+
+    named = FrontdiagError(f"{log}: {exc}", hint=exc.hint)
+    named.exit_code = exc.exit_code
+    return named
 
 
 def _write_results(out_dir: Path, result: Any, fmt: str) -> list[Path]:

@@ -220,7 +220,7 @@ class ScannedDb3(_Base):
                     yield RawMessage(topic, msgtype, t, data, (f, fmt))
             except sqlite3.DatabaseError as exc:
                 self._damaged(f, n, exc)
-                log.warning("%s", self.fault.message if self.fault else exc)
+                log.info("%s", self.fault.message if self.fault else exc)
                 return
 
     def deserialize(self, raw: RawMessage) -> Any:

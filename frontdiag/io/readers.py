@@ -120,16 +120,20 @@ class _Base:
 class RosbagsRecording(_Base):
     backend = "rosbags"
 
-    def __init__(self, path: Path, files: Sequence[Path]) -> None:
+    def __init__(self, path: Path, files: Sequence[Path], encoding: str = "cdr",
+                 tail_fault: str | None = None) -> None:
         from rosbags.highlevel import AnyReader
 
         self.path = path
-        self.fault = None
-        self._encoding = "ros1" if files and files[0].suffix == ".bag" else "cdr"
+        self._encoding = encoding
+        self._tail_fault = tail_fault  # damage after an intact index, reported after the messages
+        self.fault = None if tail_fault is None else ReadFault(f"{path}: {tail_fault}", 0)
+        self._alias = _Alias(files, encoding)
         try:
-            self._reader = AnyReader(list(files), default_typestore=typestore(2))
+            self._reader = AnyReader(self._alias.paths, default_typestore=typestore(2))
             self._reader.open()
         except Exception as exc:  # rosbags raises several unrelated types for damage
+            self._alias.cleanup()
             raise RecordingError(path, f"cannot open recording ({_short(exc)})",
                                  hint=_damage_hint(path)) from exc
         self._conns_by_topic: dict[str, list[Any]] = {}
@@ -171,7 +175,11 @@ class RosbagsRecording(_Base):
                                  conn)
         except Exception as exc:
             self.fault = ReadFault(f"{self.path}: damaged after {n} messages ({_short(exc)})", n)
-            log.warning("%s", self.fault.message)
+            log.info("%s", self.fault.message)
+            return
+        if self._tail_fault is not None:
+            self.fault = ReadFault(f"{self.path}: damaged after {n} messages ({self._tail_fault})",
+                                   n)
 
     def deserialize(self, raw: RawMessage) -> Any:
         return self._reader.deserialize(bytes(raw.data), raw.key.msgtype)
@@ -181,6 +189,111 @@ class RosbagsRecording(_Base):
             self._reader.close()
         except Exception:  # pragma: no cover - closing a damaged reader
             log.debug("error while closing %s", self.path, exc_info=True)
+        self._alias.cleanup()
+
+
+_URI_UNSAFE = set("#?%")
+
+
+class _Alias:
+    """Paths rosbags can take for ``files``: rosbags picks the format by file suffix and puts
+    sqlite paths into a URI unescaped, so a bag named ``RUN.BAG`` or ``run``, a renamed ``.db3``,
+    a bag folder named ``run.bag`` or a path holding ``#``, ``?`` or ``%`` is read through
+    symbolic links with plain names in a private temporary folder (removed on close)."""
+
+    def __init__(self, files: Sequence[Path], encoding: str) -> None:
+        self._tmp: str | None = None
+        self.paths = [self._fit(f, i, encoding) for i, f in enumerate(files)]
+
+    def _fit(self, f: Path, i: int, encoding: str) -> Path:
+        unsafe = bool(_URI_UNSAFE & set(str(f.resolve())))
+        if encoding == "ros1":
+            if f.suffix == ".bag":
+                return f
+            return self._link(f, f"part{i:04d}.bag")
+        if f.is_dir():
+            if f.suffix != ".bag" and not unsafe:
+                return f
+            folder = Path(self._dir()) / f"bag{i}"
+            folder.mkdir()
+            for child in f.iterdir():
+                (folder / child.name).symlink_to(child.resolve())
+            return folder
+        if f.suffix == ".db3" and not unsafe:
+            return f
+        return self._link(f, f"part{i:04d}.db3")
+
+    def _dir(self) -> str:
+        if self._tmp is None:
+            import tempfile
+
+            self._tmp = tempfile.mkdtemp(prefix="frontdiag-")
+        return self._tmp
+
+    def _link(self, f: Path, name: str) -> Path:
+        link = Path(self._dir()) / name
+        link.symlink_to(f.resolve())
+        return link
+
+    def cleanup(self) -> None:
+        if self._tmp is not None:
+            import shutil
+
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            self._tmp = None
+
+
+class ChainedRecording(_Base):
+    """Split ROS 1 bags read one part after another, so a damaged part keeps the parts before
+    it: the messages of each part up to its damage, then the damage, naming the part."""
+
+    backend = "rosbags"
+
+    def __init__(self, path: Path, parts: Sequence[Recording]) -> None:
+        self.path = path
+        self.parts = sorted(parts, key=lambda p: (p.start_ns is None, p.start_ns or 0))
+        self.backend = "+".join(dict.fromkeys(p.backend for p in self.parts))
+        self.fault = next((p.fault for p in self.parts if p.fault is not None), None)
+        starts = [p.start_ns for p in self.parts if p.start_ns is not None]
+        ends = [p.end_ns for p in self.parts if p.end_ns is not None]
+        self._start = min(starts) if starts else None
+        self._end = max(ends) if ends else None
+
+    @property
+    def topics(self) -> list[TopicInfo]:
+        merged: dict[str, TopicInfo] = {}
+        for part in self.parts:
+            for t in part.topics:
+                prev = merged.get(t.topic)
+                count = t.count if prev is None else (
+                    None if prev.count is None or t.count is None else prev.count + t.count)
+                merged[t.topic] = TopicInfo(t.topic, t.msgtype, count, t.encoding)
+        return list(merged.values())
+
+    def messages(self, topics: Iterable[str], start_ns: int | None = None,
+                 end_ns: int | None = None) -> Iterator[RawMessage]:
+        wanted = list(topics)
+        self.fault = None
+        n = 0
+        for part in self.parts:
+            for raw in part.messages(wanted, start_ns, end_ns):
+                n += 1
+                yield RawMessage(raw.topic, raw.msgtype, raw.log_ns, raw.data, (part, raw))
+            if part.fault is not None:
+                inner = part.fault.message.removeprefix(f"{part.path}: ")
+                _, sep, reason = inner.partition(" messages (")
+                reason = reason[:-1] if sep and reason.endswith(")") else inner
+                self.fault = ReadFault(f"{self.path}: damaged after {n} messages (in "
+                                       f"{part.path.name}: {reason})", n)
+                return
+
+    def deserialize(self, raw: RawMessage) -> Any:
+        part, inner = raw.key
+        return part.deserialize(inner)
+
+    def close(self) -> None:
+        for part in self.parts:
+            part.close()
 
 
 # --------------------------------------------------------------------------------------------
@@ -209,7 +322,7 @@ class McapRecording(_Base):
         except Exception:
             self._summary = None
         if self._summary is None:
-            log.warning("%s has no summary section (recording cut short?); streaming it", path)
+            log.info("%s has no summary section (recording cut short?); streaming it", path)
         self._schema_cache: dict[int, tuple[str, int, Any]] = {}
         self._channels: dict[str, tuple[str, str]] = {}  # topic -> (msgtype, encoding)
         self._counts: dict[str, int] = {}
@@ -235,12 +348,9 @@ class McapRecording(_Base):
                 self._start, self._end = int(stats.message_start_time), int(stats.message_end_time)
             return
         # No summary: one streaming pass to learn channels, counts and the time span.
-        from mcap.reader import NonSeekingReader
-
-        self._fh.seek(0)
         n = 0
         try:
-            for schema, ch, msg in NonSeekingReader(self._fh).iter_messages(log_time_order=False):
+            for schema, ch, msg in _stream_mcap(self._fh, None):
                 name = schema.name if schema else ""
                 self._channels.setdefault(ch.topic, (normalise_msgtype(name), ch.message_encoding))
                 self._counts[ch.topic] = self._counts.get(ch.topic, 0) + 1
@@ -257,20 +367,16 @@ class McapRecording(_Base):
 
     def messages(self, topics: Iterable[str], start_ns: int | None = None,
                  end_ns: int | None = None) -> Iterator[RawMessage]:
-        from mcap.reader import NonSeekingReader
-
         wanted = list(set(topics))
         if not wanted:
             return
         n = 0
         try:
-            if self._summary is not None:
+            if self._summary is not None and self._summary.chunk_indexes:
                 it = self._reader.iter_messages(topics=wanted, starting_at=start_ns,
                                                 ending_at=end_ns)
-            else:
-                self._fh.seek(0)
-                it = NonSeekingReader(self._fh).iter_messages(topics=wanted,
-                                                              log_time_order=False)
+            else:  # no summary, or an unchunked file: in file order, up to any damage
+                it = _stream_mcap(self._fh, set(wanted))
             for schema, ch, msg in it:
                 t = int(msg.log_time)
                 if (start_ns is not None and t < start_ns) or (end_ns is not None and t > end_ns):
@@ -280,7 +386,7 @@ class McapRecording(_Base):
                                  msg.data, (schema, ch.message_encoding))
         except Exception as exc:
             self.fault = ReadFault(f"{self.path}: damaged after {n} messages ({_short(exc)})", n)
-            log.warning("%s", self.fault.message)
+            log.info("%s", self.fault.message)
 
     def deserialize(self, raw: RawMessage) -> Any:
         schema, encoding = raw.key
@@ -317,6 +423,43 @@ class McapRecording(_Base):
             fh.close()
 
 
+def _stream_mcap(fh: Any, topics: set[str] | None) -> Iterator[tuple[Any, Any, Any]]:
+    """(schema, channel, message) in file order, raising at the first damaged record.
+
+    Unlike the mcap package's own streaming reader it stops at opcode 0 (never a valid record:
+    the zeros a preallocating recorder leaves) instead of skipping 9 bytes at a time through
+    them, and it refuses a record longer than the file.
+    """
+    import os
+
+    from mcap.records import Channel, Message, Schema
+    from mcap.stream_reader import StreamReader
+
+    size = os.fstat(fh.fileno()).st_size
+
+    class Strict(StreamReader):
+        def _read_record(self, opcode: int, length: int) -> Any:
+            if opcode == 0:
+                at = self._stream.count - 9
+                raise ValueError(f"zeros where a record must be, from byte {at} of {size}")
+            return super()._read_record(opcode, length)
+
+    fh.seek(0)
+    schemas: dict[int, Any] = {}
+    channels: dict[int, Any] = {}
+    for record in Strict(fh, record_size_limit=size).records:
+        if isinstance(record, Schema):
+            schemas[record.id] = record
+        elif isinstance(record, Channel):
+            channels[record.id] = record
+        elif isinstance(record, Message):
+            ch = channels.get(record.channel_id)
+            if ch is None:
+                raise ValueError(f"message on unknown channel {record.channel_id}")
+            if topics is None or ch.topic in topics:
+                yield schemas.get(ch.schema_id), ch, record
+
+
 # --------------------------------------------------------------------------------------------
 # registry and choice
 # --------------------------------------------------------------------------------------------
@@ -326,21 +469,52 @@ MCAP_BACKEND = "mcap"
 and it is the only one of the two that reads ROS 1-encoded MCAP and files cut short."""
 
 
-def _rosbags(path: Path, files: Sequence[Path]) -> Recording:
-    try:
-        return RosbagsRecording(path, files)
-    except RecordingError:
-        if len(files) == 1 and files[0].suffix == ".bag":
-            # An unindexed or truncated ROS 1 bag: read its records sequentially up to the damage.
-            from frontdiag.io.bag_scan import ScannedBag
+def _rosbags(path: Path, files: Sequence[Path], container: str = "") -> Recording:
+    if container.startswith("ros1"):
+        return _ros1(path, files)
+    from frontdiag.io.db3_scan import bag_files, header_shortfall
 
-            log.warning("%s: index missing or damaged; reading records sequentially", path)
-            return ScannedBag(files[0])
+    try:
+        db3 = bag_files(files[0]) if len(files) == 1 and files[0].is_dir() else list(files)
+    except RecordingError:  # e.g. a compressed bag: rosbags says what it makes of it
+        db3 = []
+    if any(f.is_file() and header_shortfall(f) for f in db3):
+        # sqlite reads a file missing its last pages without complaint until a query needs
+        # them; read it row by row so the shortfall is reported
+        scanned = _scan_db3(path, files)
+        if scanned is not None:
+            return scanned
+    try:
+        return RosbagsRecording(path, files, "cdr")
+    except RecordingError:
         scanned = _scan_db3(path, files)
         if scanned is None:
             raise
-        log.warning("%s: sqlite file damaged or cut short; reading its rows directly", path)
+        log.info("%s: sqlite file damaged or cut short; reading its rows directly", path)
         return scanned
+
+
+def _ros1(path: Path, files: Sequence[Path]) -> Recording:
+    """ROS 1 bags: rosbags when the index is intact, else the record scanner; split bags part
+    by part when one of them is damaged."""
+    from frontdiag.io.bag_scan import ScannedBag, read_layout
+
+    layouts = [read_layout(f) for f in files]
+    if len(files) > 1:
+        if all(lay.index_fault is None and lay.tail_fault is None for lay in layouts):
+            try:
+                return RosbagsRecording(path, files, "ros1")
+            except RecordingError:
+                pass
+        return ChainedRecording(path, [_ros1(f, [f]) for f in files])
+    (f,), (layout,) = files, layouts
+    if layout.index_fault is None:
+        try:
+            return RosbagsRecording(path, files, "ros1", tail_fault=layout.tail_fault)
+        except RecordingError:
+            pass
+    log.info("%s: index missing or damaged; reading records without it", path)
+    return ScannedBag(f, layout)
 
 
 def _scan_db3(path: Path, files: Sequence[Path]) -> Recording | None:
@@ -372,7 +546,7 @@ def _magic(path: Path, n: int) -> bytes:
         return fh.read(n)
 
 
-def _mcap(path: Path, files: Sequence[Path]) -> Recording:
+def _mcap(path: Path, files: Sequence[Path], container: str = "") -> Recording:
     return McapRecording(files[0] if files else path)
 
 
@@ -399,30 +573,53 @@ def plan(path: Path) -> _Plan:
                 # a single-file MCAP bag: the faster reader, same messages
                 return _Plan(MCAP_BACKEND, mcaps, "ros2 bag folder (mcap)")
             return _Plan("rosbags", [path], "ros2 bag folder")
-        bags = sorted(path.glob("*.bag"))
+        # the files' magic bytes, not their names, say what they are
+        kinds: dict[str, list[Path]] = {}
+        for f in sorted((f for f in path.iterdir() if f.is_file()), key=_natural):
+            kind = _kind(f)
+            if kind:
+                kinds.setdefault(kind, []).append(f)
+        bags, db3, mcaps = kinds.get("bag", []), kinds.get("sqlite", []), kinds.get("mcap", [])
         if bags:
             return _Plan("rosbags", bags, "ros1 split bags")
-        db3 = sorted(path.glob("*.db3"))
-        mcaps = sorted(path.glob("*.mcap"))
         if len(db3) == 1 and not mcaps:
             return _Plan("rosbags", db3, "ros2 db3 (no metadata.yaml)")
         if len(mcaps) == 1 and not db3:
             return plan(mcaps[0])
-        raise RecordingError(path, "folder holds no metadata.yaml, .bag, single .db3 or .mcap",
+        raise RecordingError(path, "folder holds no metadata.yaml, ROS 1 bag, single sqlite "
+                                   "(.db3) or single MCAP file",
                              hint="pass the recording file itself")
     if path.stat().st_size == 0:
         raise RecordingError(path, "file is empty")
-    with open(path, "rb") as fh:
-        magic = fh.read(13)
-    if magic.startswith(b"\x89MCAP"):
+    kind = _kind(path)
+    if kind == "mcap":
         return _Plan(MCAP_BACKEND if _mcap_profile(path) in ("ros2", "") else "mcap", [path],
                      "mcap")
-    if magic.startswith(b"#ROSBAG V2.0"):
+    if kind == "bag":
         return _Plan("rosbags", [path], "ros1 bag")
-    if magic.startswith(b"SQLite format"):
+    if kind == "sqlite":
         return _Plan("rosbags", [path], "ros2 db3 (no metadata.yaml)")
     raise RecordingError(path, "unknown container (not MCAP, ROS 1 bag v2.0 or sqlite3)",
                          hint="frontdiag reads .bag, .db3, .mcap files and ROS 2 bag folders")
+
+
+_MAGIC = {b"\x89MCAP": "mcap", b"#ROSBAG V2.0": "bag", b"SQLite format 3\x00": "sqlite"}
+
+
+def _kind(path: Path) -> str | None:
+    """``mcap``, ``bag`` or ``sqlite`` by the file's first bytes (its name is not trusted)."""
+    try:
+        head = _magic(path, 16)
+    except OSError:
+        return None
+    return next((kind for magic, kind in _MAGIC.items() if head.startswith(magic)), None)
+
+
+def _natural(p: Path) -> list[Any]:
+    """Sort key putting run_2.bag before run_10.bag."""
+    import re
+
+    return [(0, int(s), "") if s.isdigit() else (1, 0, s) for s in re.split(r"(\d+)", p.name)]
 
 
 def _mcap_profile(path: Path) -> str:
@@ -442,10 +639,12 @@ def open_recording(path: Path | str, backend: str | None = None) -> Recording:
     name = backend or p.backend
     if name not in READERS:
         raise RecordingError(path, f"unknown reader backend {name!r}")
-    return READERS[name](path, p.files)
+    return READERS[name](path, p.files, p.container)
 
 
 def _short(exc: BaseException) -> str:
+    if type(exc).__name__ == "EndOfFile" and not str(exc).strip():  # mcap's, without a message
+        return "cut short: the file ends inside a record"
     text = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
     return text[:200]
 

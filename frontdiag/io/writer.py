@@ -123,7 +123,8 @@ class RecordingWriter:
     ...     w.write("/cam/image_raw", "sensor_msgs/msg/Image", {...}, t_ns)
     """
 
-    def __init__(self, path: Path | str, fmt: WriteFormat | str = "mcap") -> None:
+    def __init__(self, path: Path | str, fmt: WriteFormat | str = "mcap",
+                 chunk_bytes: int = 1024 * 1024) -> None:
         if fmt not in WRITE_FORMATS:
             raise ValueError(f"unknown format {fmt!r}; choose one of {', '.join(WRITE_FORMATS)}")
         self.path = Path(path)
@@ -133,6 +134,7 @@ class RecordingWriter:
         self._writer: Any = None
         self._conns: dict[tuple[str, str], Any] = {}
         self._schemas: dict[str, int] = {}
+        self.chunk_bytes = chunk_bytes  # 0: an unchunked MCAP (bags always have chunks)
 
     # -- context management -------------------------------------------------------------
     def __enter__(self) -> RecordingWriter:
@@ -148,6 +150,7 @@ class RecordingWriter:
             from rosbags.rosbag1 import Writer as Ros1Writer
 
             self._writer = Ros1Writer(self.path)
+            self._writer.chunk_threshold = max(self.chunk_bytes, 1)
             self._writer.open()
         elif self.fmt in ("ros2-db3", "ros2-mcap"):
             from rosbags.rosbag2 import StoragePlugin
@@ -161,7 +164,8 @@ class RecordingWriter:
 
             self._fh = open(self.path, "wb")  # noqa: SIM115 - closed in close()
             # 1 MiB chunks: a recording cut short loses at most one chunk
-            self._writer = McapWriter(self._fh, chunk_size=1024 * 1024)
+            self._writer = McapWriter(self._fh, chunk_size=max(self.chunk_bytes, 1),
+                                      use_chunking=self.chunk_bytes > 0)
             profile = "ros1" if self.fmt == "mcap-ros1" else "ros2"
             self._writer.start(profile=profile, library="frontdiag")
 

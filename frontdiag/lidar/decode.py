@@ -143,6 +143,12 @@ def _first_component(a: np.ndarray) -> np.ndarray:
     return a[..., 0] if a.ndim > 1 else a
 
 
+PLANAR_Z_SPREAD_M = 1e-6
+"""A PointCloud2 whose points all share one z (to this spread) is a 2D scan and registered as
+one (SE(2)): read as 3D it has no vertical structure, and too few points survive the 3D voxel
+grid and point-count minimum to register at all."""
+
+
 def decode_pointcloud2(msg: Any, *, topic: str, index: int, log_ns: int) -> LidarScan:
     """A rosbags ``sensor_msgs/PointCloud2`` (ROS 1 or ROS 2) -> :class:`LidarScan`.
 
@@ -193,8 +199,10 @@ def decode_pointcloud2(msg: Any, *, topic: str, index: int, log_ns: int) -> Lida
         _first_component(pts[iname])[keep].astype(np.float32)
     rname = _pick(names, RING_FIELDS)
     ring = None if rname is None else _first_component(pts[rname])[keep].astype(np.int32)
+    # a 2D scanner published as PointCloud2 (laser_geometry's projection): every z the same
+    planar = bool(len(xyz)) and float(np.ptp(xyz[:, 2])) <= PLANAR_Z_SPREAD_M
     return LidarScan(index=index, t_ns=t_ns, log_ns=int(log_ns), topic=topic, xyz=xyz,
-                     time_rel_s=time_rel, intensity=intensity, ring=ring, planar=False,
+                     time_rel_s=time_rel, intensity=intensity, ring=ring, planar=planar,
                      frame_id=str(msg.header.frame_id), n_raw=n_raw,
                      ms_decode=(time.perf_counter() - start) * 1e3)
 
