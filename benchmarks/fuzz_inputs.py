@@ -1,0 +1,135 @@
+"""Fault-injection campaign: damaged and odd recordings of every container, counted by outcome.
+
+Each case is a copy of a small valid recording (written here, in a temporary folder) with one
+damage from ``tests/damage.py`` at seeded random places, or a valid recording under an awkward
+name. ``frontdiag analyze`` runs on it in its own process with a time limit, and the outcome is
+put in one class:
+
+  exit 0/1 with frames      contract met: the recording was read
+  exit 2 one line           contract met: one ``error:`` line naming the file (+ its hint)
+  exit 0/1 WITHOUT frames   a pass that analysed nothing
+  exit 2 NOT one line       several lines (an error and its hint count as one)
+  exit 2 NOT naming the file
+  exit 3 / traceback / hang / changed input
+
+Usage (from the repository root)::
+
+    python benchmarks/fuzz_inputs.py --cases 100 --seed 1 --timeout 120 [--jobs 2]
+
+``--cases`` is per container and damage kind. Prints the counts per class and per container,
+and every case outside the contract with the command that reproduces it (the damaged files are
+kept in ``--keep DIR`` when given).
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import random
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from collections import Counter, defaultdict
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+
+from damage import (
+    DAMAGE,
+    GOOD,
+    SOURCES,
+    Outcome,
+    damaged_copy,
+    fingerprint,
+    make_source,
+    odd_copies,
+)
+
+
+def run_case(rec: Path, out: Path, timeout: float) -> tuple[Outcome, float]:
+    before = fingerprint(rec)
+    cmd = [sys.executable, "-m", "frontdiag", "analyze", str(rec), "--out", str(out),
+           "--fail-on", "never", "-q", "--no-rules"]
+    t0 = time.perf_counter()
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+        code: int | None = proc.returncode
+        err = proc.stderr
+    except subprocess.TimeoutExpired:
+        code, err = None, ""
+    seconds = time.perf_counter() - t0
+    rows = 0
+    frames = out / "frames.parquet"
+    if frames.exists():
+        import pandas as pd
+
+        rows = len(pd.read_parquet(frames))
+    return Outcome(code, rows, err, fingerprint(rec) != before, str(rec)), seconds
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--cases", type=int, default=20, help="cases per container and damage kind")
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--timeout", type=float, default=120.0, help="seconds before a case hangs")
+    ap.add_argument("--jobs", type=int, default=1, help="cases run at once")
+    ap.add_argument("--keep", type=Path, default=None,
+                    help="copy the inputs of cases outside the contract here")
+    args = ap.parse_args()
+    rng = random.Random(args.seed)
+    work = Path(tempfile.mkdtemp(prefix="frontdiag-fuzz-"))
+    try:
+        sources = {c: make_source(work / "src" / c, c) for c in SOURCES}
+        cases: list[tuple[str, str, Path]] = []  # (container, kind, input)
+        for container, src in sources.items():
+            for kind in sorted(DAMAGE):
+                for i in range(args.cases):
+                    a, b = rng.random(), rng.random()
+                    dest = work / "cases" / f"{container}-{kind}-{i}" / src.name
+                    cases.append((container, f"{kind} a={a:.4f} b={b:.4f}",
+                                  damaged_copy(src, dest, kind, a, b)))
+            for rec in odd_copies(src, work / "odd" / container, container):
+                cases.append((container, f"odd name {rec.name!r}", rec))
+
+        def one(case: tuple[str, str, Path]) -> tuple[str, str, Path, Outcome, float]:
+            container, kind, rec = case
+            o, s = run_case(rec, rec.parent / "out", args.timeout)
+            return container, kind, rec, o, s
+
+        t0 = time.perf_counter()
+        with ThreadPoolExecutor(max(1, args.jobs)) as pool:
+            results = list(pool.map(one, cases))
+        wall = time.perf_counter() - t0
+        by_class: Counter[str] = Counter()
+        by_container: dict[str, Counter[str]] = defaultdict(Counter)
+        bad = []
+        seconds = sorted(s for *_, s in results)
+        for container, kind, rec, o, _ in results:
+            klass = o.klass
+            by_class[klass] += 1
+            by_container[container][klass] += 1
+            if klass not in GOOD:
+                bad.append((container, kind, rec, klass, o.err.strip().splitlines()[-1:]))
+        print(f"{len(results)} cases ({args.cases} per container and damage kind, seed "
+              f"{args.seed}, timeout {args.timeout:g} s) in {wall:.0f} s; per case median "
+              f"{seconds[len(seconds) // 2]:.2f} s, max {seconds[-1]:.2f} s")
+        for klass, n in sorted(by_class.items(), key=lambda kv: (kv[0] not in GOOD, kv[0])):
+            print(f"  {n:5d}  {klass}{'' if klass in GOOD else '   <-- outside the contract'}")
+        for container, counts in sorted(by_container.items()):
+            print(f"  {container:10s} " + ", ".join(f"{k}: {v}" for k, v in sorted(counts.items())))
+        for container, kind, rec, klass, tail in bad:
+            print(f"OUTSIDE {klass}: {container} {kind}: {tail}")
+            if args.keep is not None:
+                dest = args.keep / hashlib.sha1(str(rec).encode()).hexdigest()[:8]
+                shutil.copytree(rec.parent, dest, dirs_exist_ok=True)
+                print(f"   kept in {dest}")
+        return 0 if not bad else 1
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
