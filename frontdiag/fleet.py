@@ -58,8 +58,9 @@ def discover(inputs: Iterable[str | Path]) -> list[Path]:
     found: list[Path] = []
     for item in inputs:
         text = str(item)
-        paths = [Path(p) for p in sorted(glob.glob(text))] if glob.has_magic(text) \
-            else [Path(text)]
+        # a path that exists is itself, even when its name holds glob characters ([cam1], ?)
+        paths = [Path(p) for p in sorted(glob.glob(text))] \
+            if glob.has_magic(text) and not Path(text).exists() else [Path(text)]
         if not paths or not paths[0].exists():
             raise ConfigError(f"{text}: no such file, folder or matching recording",
                               hint="pass recordings, folders of recordings or a quoted glob")

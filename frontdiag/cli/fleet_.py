@@ -17,7 +17,8 @@ def is_fleet(logs: list[Path], scheduler: str | None) -> bool:
 
     from frontdiag.fleet import is_recording
 
-    if len(logs) > 1 or scheduler is not None or glob.has_magic(str(logs[0])):
+    if len(logs) > 1 or scheduler is not None or (glob.has_magic(str(logs[0]))
+                                                   and not logs[0].exists()):
         return True
     p = logs[0]
     return p.is_dir() and not is_recording(p)
