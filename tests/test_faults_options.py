@@ -85,7 +85,7 @@ def _out_cases(tmp_path: Path, rec: Path) -> list[tuple[list[str], Path]]:
     return [
         (["--out", str(a_file / "res")], a_file),
         (["--out", str(a_file)], a_file),
-        (["--out", str(blocked)], blocked / "frames.parquet"),
+        (["--out", str(blocked), "--force"], blocked / "frames.parquet"),
         (["--junit", str(rec)], rec),  # would overwrite the recording
         (["--junit", str(a_file / "r.xml")], a_file),
         (["--junit", str(tmp_path)], tmp_path),
@@ -191,8 +191,8 @@ def test_a_bad_recording_camera_info_is_exit_2_and_intrinsics_get_past_it(
     yaml = tmp_path / "cam.yaml"
     yaml.write_text("camera_matrix: {rows: 3, cols: 3, data: [120, 0, 80, 0, 120, 60, 0, 0, 1]}\n"
                     "distortion_model: plumb_bob\ndistortion_coefficients: {data: [0, 0, 0, 0, 0]}\n")
-    for opt in (["--intrinsics", "120,120,80,60"], ["--camera-info", str(yaml)]):
-        code, _, err = run(["analyze", str(rec), *opt, "--out", str(tmp_path / "o")], capsys)
+    for i, opt in enumerate((["--intrinsics", "120,120,80,60"], ["--camera-info", str(yaml)])):
+        code, _, err = run(["analyze", str(rec), *opt, "--out", str(tmp_path / f"o{i}")], capsys)
         assert code == 0, err
 
 
