@@ -72,8 +72,9 @@ def view(img: np.ndarray, j: int) -> np.ndarray:
 
 
 def write(path: Path, key: str, n: int, *, jpeg_quality: int = 90, seg: int = 60,
-          root: Path | None = None) -> Path:
-    """``n`` frames of source ``key`` as JPEG CompressedImage (and CameraInfo) in MCAP."""
+          root: Path | None = None, first: int = 0) -> Path:
+    """``n`` frames of source ``key`` as JPEG CompressedImage (and CameraInfo) in MCAP,
+    starting at photograph ``first``."""
     from frontdiag.io.writer import RecordingWriter, camera_info_msg, compressed_image_msg
 
     src = SOURCES[key]
@@ -85,7 +86,7 @@ def write(path: Path, key: str, n: int, *, jpeg_quality: int = 90, seg: int = 60
     with RecordingWriter(path, "mcap") as wr:
         for i in range(n):
             t = T0 + i * dt
-            frame = view(imgs[(i // seg) % len(imgs)], i % seg)
+            frame = view(imgs[(first + i // seg) % len(imgs)], i % seg)
             ok, buf = cv2.imencode(".jpg", frame, [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality])
             assert ok
             wr.write("/cam/image/compressed", "sensor_msgs/msg/CompressedImage",

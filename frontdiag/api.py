@@ -190,6 +190,7 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
             Path(opts.rules_overrides) if opts.rules_overrides else None,
             select=opts.select, ignore=opts.ignore,
             extra_dirs=[Path(d) for d in opts.rules_extra or ()])
+        opts = _read_intervals_for(ruleset, opts)
     notes: list[str] = []
     with open_recording(path) as rec:
         topic_infos = rec.topics
@@ -238,6 +239,22 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
     return Analysis(table=table, manifest=manifest, choice=choice, intrinsics=intr, notes=notes,
                     fault=fault, interrupted=run.interrupted, verdicts=verdicts,
                     ruleset=ruleset)
+
+
+def _read_intervals_for(ruleset: Any, opts: AnalysisOptions) -> AnalysisOptions:
+    """The camera frontend takes its two-interval reading on intervals shorter than
+    ``two_interval_px``; rules that read intervals up to a larger ``min_parallax_px`` raise it."""
+    from dataclasses import replace
+
+    from frontdiag.camera.frontend import CameraParams
+
+    cp = opts.camera_params or CameraParams()
+    need = max((float(r.param("min_parallax_px")) for r in ruleset.frame_rules
+                if r.check == "he_parallax_quadrant" and "min_parallax_px" in r.params),
+               default=0.0)
+    if need <= cp.two_interval_px:
+        return opts
+    return replace(opts, camera_params=replace(cp, two_interval_px=need))
 
 
 def _stream_notes(path: Path, rec: Recording, run: StreamRun,

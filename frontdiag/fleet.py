@@ -106,7 +106,8 @@ def setup_hash(opts: Any) -> str:
     if opts.rules:
         rules = load_ruleset(Path(opts.rules_dir) if opts.rules_dir else None,
                              Path(opts.rules_overrides) if opts.rules_overrides else None,
-                             select=opts.select, ignore=opts.ignore).to_dict()
+                             select=opts.select, ignore=opts.ignore,
+                             extra_dirs=[Path(d) for d in opts.rules_extra or ()]).to_dict()
     options = asdict(replace(opts, jobs=1))
     blob = json.dumps({"frontdiag": __version__, "rules": rules, "options": options},
                       sort_keys=True, default=str)

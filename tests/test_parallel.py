@@ -37,3 +37,15 @@ def test_parallel_table_equals_serial(tmp_path: Path, shift: int) -> None:
     _same_table(serial.table, par.table)
     assert serial.manifest["counts"] == par.manifest["counts"]
     assert serial.verdicts.episodes.equals(par.verdicts.episodes)
+
+
+def test_rules_reading_longer_intervals_raise_the_two_interval_threshold(tmp_path: Path) -> None:
+    from frontdiag.api import _read_intervals_for
+    from frontdiag.verdicts import load_ruleset
+
+    shipped = _read_intervals_for(load_ruleset(), AnalysisOptions())
+    assert shipped.camera_params is None  # 4.9 px: the frontend's default already covers it
+    ov = tmp_path / "ov.toml"
+    ov.write_text('[FD-PLN-001]\nthreshold.min_parallax_px = 7.5\n')
+    raised = _read_intervals_for(load_ruleset(overrides=ov), AnalysisOptions())
+    assert raised.camera_params.two_interval_px == 7.5
