@@ -54,6 +54,8 @@ def photos(src: Source, root: Path | None = None) -> list[np.ndarray]:
     out = []
     for f in files:
         img = cv2.imread(str(f), cv2.IMREAD_COLOR)
+        if img is None:
+            raise FileNotFoundError(f"cannot read {f}")
         if src.size is not None:
             w, h = src.size
             s = max(w / img.shape[1], h / img.shape[0])
