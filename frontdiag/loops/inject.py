@@ -37,7 +37,7 @@ def _claims(rng: np.random.Generator, n: int, dim: int, radius: float) -> NDArra
         return lie.se2(r * np.cos(ang), r * np.sin(ang), yaw)
     v = rng.normal(size=(n, 3))
     v *= (radius * rng.uniform(0, 1, n) ** (1 / 3) / np.linalg.norm(v, axis=1))[:, None]
-    rot = Rotation.from_euler("z", yaw) * Rotation.from_rotvec(rng.normal(0, 0.05, (n, 3)))
+    rot = Rotation.from_euler("z", yaw[:, None]) * Rotation.from_rotvec(rng.normal(0, 0.05, (n, 3)))
     return lie.se3(v, rot.as_quat())
 
 
