@@ -283,12 +283,27 @@ def machine_info() -> dict[str, str]:
             "opencv": cv2.__version__, "numpy": np.__version__}
 
 
+def _prime_allocator() -> None:
+    """Put the C allocator in the state a long analysis runs in before timing anything.
+
+    glibc serves large blocks with mmap until a freed block raises its dynamic threshold, and
+    trims the heap above twice that threshold. A fresh process is in the cold state, where every
+    multi-megabyte NumPy temporary is a fresh mapping that page-faults on first touch: the
+    per-point deskew timing read 2.3x slower in a process's first calibration than in its second
+    (benchmarks/bench_calibrate.py). Allocating and releasing one touched 30 MiB block raises the
+    threshold as an analysis's own allocations soon do; elsewhere it is a harmless allocation.
+    """
+    block = np.ones(30 * 2**20 // 8)
+    del block
+
+
 def calibrate(repeats: int = 15, seed: int = 0, name: str | None = None) -> Target:
     """Time every coefficient on this machine; seeded inputs, one thread, median of repeats."""
     import cv2
 
     threads = cv2.getNumThreads()
     cv2.setNumThreads(1)
+    _prime_allocator()
     try:
         rng = np.random.default_rng(seed)
         _SPREADS.clear()
