@@ -99,6 +99,15 @@ def _series(rows: pd.DataFrame, metric: str) -> tuple[list[float], list[float | 
                                             for y in v]
 
 
+def _line_label(value: float, ths: Sequence[Threshold]) -> str:
+    """Short text on a threshold line: its value and the rules drawn there (full text on hover);
+    four rules' full labels on one line ran across the whole plot."""
+    rules = list(dict.fromkeys(t.rule for t in ths))
+    if len(rules) == 1:
+        return ths[0].label
+    return f"{value:.4g}: " + ", ".join(rules)
+
+
 def metric_figure(run: RunData, baseline: RunData | None, sensor: str, topic: str,
                   metric: str, thresholds: Sequence[Threshold]) -> Any:
     import plotly.graph_objects as go
@@ -137,7 +146,8 @@ def metric_figure(run: RunData, baseline: RunData | None, sensor: str, topic: st
         sev = "fail" if any(t.severity == "fail" for t in ths) else ths[0].severity
         fig.add_hline(y=value, line={"color": SEVERITY_COLOR.get(sev, "#555"), "dash": "dash",
                                      "width": 1},
-                      annotation={"text": html.escape("; ".join(t.label for t in ths)),
+                      annotation={"text": html.escape(_line_label(value, ths)),
+                                  "hovertext": "<br>".join(html.escape(t.label) for t in ths),
                                   "font": {"size": 10, "color": "#444"}},
                       annotation_position="top left")
     finite = np.array([y for y in v if y is not None], dtype=float)
