@@ -19,6 +19,14 @@ Usage (from the repository root)::
 ``--cases`` is per container and damage kind. Prints the counts per class and per container,
 and every case outside the contract with the command that reproduces it (the damaged files are
 kept in ``--keep DIR`` when given).
+
+Parallel windows (``analyze --jobs N``) on damaged input::
+
+    python benchmarks/fuzz_inputs.py --cases 1 --frames 120 --analyze-jobs 2
+
+runs every case twice, with ``--jobs 2`` and serially, and adds one more class, "jobs N differs
+from serial", for a case whose exit code, frame indices or verdicts differ between the two
+(recordings under 100 frames are never split, hence ``--frames``).
 """
 
 from __future__ import annotations
@@ -39,6 +47,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from damage import (
     DAMAGE,
+    FRAMES,
     GOOD,
     SOURCES,
     Outcome,
@@ -48,11 +57,41 @@ from damage import (
     odd_copies,
 )
 
+DIFFERS = "jobs N differs from serial"
 
-def run_case(rec: Path, out: Path, timeout: float) -> tuple[Outcome, float]:
+
+def _table_key(out: Path) -> tuple[object, ...]:
+    """What must not depend on the number of workers: frame indices and verdicts."""
+    frames = out / "frames.parquet"
+    if not frames.exists():
+        return ()
+    import pandas as pd
+
+    t = pd.read_parquet(frames)
+    cols = [c for c in ("sensor", "frame", "status", "verdict", "rules") if c in t.columns]
+    return tuple(map(tuple, t[cols].astype(str).to_numpy()))
+
+
+def run_case(rec: Path, out: Path, timeout: float, analyze_jobs: int = 1,
+             rules: bool = False) -> tuple[Outcome, float]:
+    """One analyze run on ``rec``; with ``analyze_jobs`` > 1 a ``--jobs`` run with the rules,
+    then the serial run it must equal (the table, the verdicts and the exit code)."""
+    if analyze_jobs > 1:
+        par_out = out.with_name(out.name + "-jobs")
+        par, seconds = run_case(rec, par_out, timeout, -analyze_jobs, rules=True)
+        ser, _ = run_case(rec, out, timeout, rules=True)
+        if (par.klass in GOOD and ser.klass in GOOD
+                and (par.code, par.rows, _table_key(par_out))
+                != (ser.code, ser.rows, _table_key(out))):
+            return Outcome(par.code, par.rows, f"{DIFFERS}: exit {par.code} vs {ser.code}, "
+                           f"{par.rows} vs {ser.rows} rows", par.changed, str(rec),
+                           forced=DIFFERS), seconds
+        return par, seconds
     before = fingerprint(rec)
+    extra = ["--jobs", str(-analyze_jobs)] if analyze_jobs < 0 else []
+    extra += [] if rules else ["--no-rules"]
     cmd = [sys.executable, "-m", "frontdiag", "analyze", str(rec), "--out", str(out),
-           "--fail-on", "never", "-q", "--no-rules"]
+           "--fail-on", "never", "-q", *extra]
     t0 = time.perf_counter()
     try:
         proc = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
@@ -76,13 +115,17 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--timeout", type=float, default=120.0, help="seconds before a case hangs")
     ap.add_argument("--jobs", type=int, default=1, help="cases run at once")
+    ap.add_argument("--frames", type=int, default=FRAMES,
+                    help=f"camera frames per source recording (default {FRAMES})")
+    ap.add_argument("--analyze-jobs", type=int, default=1,
+                    help="also run analyze --jobs N on every case and compare with the serial run")
     ap.add_argument("--keep", type=Path, default=None,
                     help="copy the inputs of cases outside the contract here")
     args = ap.parse_args()
     rng = random.Random(args.seed)
     work = Path(tempfile.mkdtemp(prefix="frontdiag-fuzz-"))
     try:
-        sources = {c: make_source(work / "src" / c, c) for c in SOURCES}
+        sources = {c: make_source(work / "src" / c, c, n=args.frames) for c in SOURCES}
         cases: list[tuple[str, str, Path]] = []  # (container, kind, input)
         for container, src in sources.items():
             for kind in sorted(DAMAGE):
@@ -96,7 +139,7 @@ def main() -> int:
 
         def one(case: tuple[str, str, Path]) -> tuple[str, str, Path, Outcome, float]:
             container, kind, rec = case
-            o, s = run_case(rec, rec.parent / "out", args.timeout)
+            o, s = run_case(rec, rec.parent / "out", args.timeout, args.analyze_jobs)
             return container, kind, rec, o, s
 
         t0 = time.perf_counter()

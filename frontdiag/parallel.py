@@ -142,12 +142,16 @@ def _stitch(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
             ) -> tuple[list[dict[str, Any]], SensorStream | None, Any, bool]:
     """Camera rows and counts of consecutive windows, in order, as one pass would give them.
 
-    Stops at the first window that is missing (interrupted), faulted or was interrupted: what
-    follows it would not be in a single pass's result either.
+    Stops at the first window that is missing (interrupted), was interrupted, or was cut short
+    by damage: what follows it would not be in a single pass's result either. Damage a window's
+    reader reports although the window read all its frames (a garbage tail after a bag's index
+    is seen when the file is opened) lies beyond that window: the next windows go on, and the
+    damage is the pass's fault at the end, as in one pass.
     """
     rows: list[dict[str, Any]] = []
     merged: SensorStream | None = None
     prev: StreamRun | None = None
+    later_fault: Any = None
     for i, (w, run) in enumerate(zip(windows, runs, strict=True)):
         if run is None:
             return rows, merged, None, True
@@ -155,11 +159,18 @@ def _stitch(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
             run = _rerun(path, choice, opts, intr, w, prev, run)
         rows += run.rows
         merged = _merge_counts(merged, run.cam)
-        if run.fault is not None or run.interrupted:
+        if run.interrupted or (run.fault is not None and not _read_whole(run, w)):
             return rows, merged, run.fault, run.interrupted
+        later_fault = later_fault or run.fault
         prev = run
         log.debug("window %d: frames %d-%s, %d rows", i, w.own_from, w.own_to, len(run.rows))
-    return rows, merged, None, False
+    return rows, merged, later_fault, False
+
+
+def _read_whole(run: StreamRun, w: FrameWindow) -> bool:
+    """Whether the window's run read every message it owns (the last window owns the rest of
+    the recording, so damage anywhere after its start cuts it short)."""
+    return w.own_to is not None and run.cam is not None and run.cam.index >= w.own_to - 1
 
 
 def _met(prev: StreamRun, run: StreamRun, w: FrameWindow) -> bool:

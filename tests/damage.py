@@ -147,9 +147,12 @@ class Outcome:
     err: str
     changed: bool
     path: str = ""  # the input, which an error line must name
+    forced: str = ""  # a class decided by the caller (a parallel run differing from serial)
 
     @property
     def klass(self) -> str:
+        if self.forced:
+            return self.forced
         if self.changed:
             return "changed input"
         if self.code is None:

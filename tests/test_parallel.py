@@ -49,3 +49,24 @@ def test_rules_reading_longer_intervals_raise_the_two_interval_threshold(tmp_pat
     ov.write_text('[FD-PLN-001]\nthreshold.min_parallax_px = 7.5\n')
     raised = _read_intervals_for(load_ruleset(overrides=ov), AnalysisOptions())
     assert raised.camera_params.two_interval_px == 7.5
+
+
+@pytest.mark.parametrize("kind", ["garbage_tail", "cut"])
+def test_damage_gives_the_serial_frames_and_fault(tmp_path: Path, kind: str) -> None:
+    # garbage after a bag's index is seen when the file is opened, by every window's reader;
+    # it lies after all frames, so the windows before the last must not stop the stitching
+    # there (they did: --jobs 2 kept 60 of the 120 frames a serial pass keeps). A cut inside
+    # the second window stops both passes at the same frame.
+    from damage import damaged_copy, make_source
+
+    src = make_source(tmp_path / "src", "bag", n=120)
+    bad = damaged_copy(src, tmp_path / kind / src.name, kind, 0.8, 0.5)
+    serial = run_analysis(bad, AnalysisOptions())
+    par = run_analysis(bad, AnalysisOptions(jobs=2))
+    assert serial.fault is not None and par.fault is not None
+    assert str(par.fault) == str(serial.fault)
+    if kind == "garbage_tail":
+        assert len(serial.table) == 120
+    else:
+        assert 60 < len(serial.table) < 120  # the damage is inside the second window
+    _same_table(serial.table, par.table)
