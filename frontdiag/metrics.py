@@ -143,6 +143,9 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
     _M("affine_bias", "grey level", "camera", "offset b of the affine brightness model"),
     _M("photo_residual_affine_med", "grey level", "camera",
        "median residual after removing the affine brightness model", "lower"),
+    _M("brightness_ratio", "ratio", "camera",
+       "median over tracked features of mean(8x8 patch now) / mean(patch in the previous frame): "
+       "how much brighter the same surfaces are; 1.0 unchanged, 1.2 a 20% gain step"),
     # --- timing
     _M("ms_decode", "ms", "any", "decode + grey conversion", "lower"),
     _M("ms_detect", "ms", "camera", "ORB detection + description with bucketing", "lower"),

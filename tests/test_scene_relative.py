@@ -139,6 +139,45 @@ def test_a_bright_scene_cut_is_not_a_darkness_step(ruleset) -> None:
     assert not hits(res, "exposure_step").any()
 
 
+# --- the same surfaces brighter: photographs far apart ------------------------------------------
+
+def test_brightness_ratio_reads_the_gain_where_patches_do_not_align() -> None:
+    """A 25 % gain between two views 3 px apart: the pixel residual is large (misalignment), the
+    ratio of patch means still reads the gain; without a gain it reads 1."""
+    from frontdiag.camera.photometric import photometric
+
+    rng = np.random.default_rng(4)
+    img = cv2.GaussianBlur(rng.uniform(40, 160, (240, 320)).astype(np.float32), (0, 0), 3)
+    xy = np.column_stack([rng.uniform(20, 300, 200), rng.uniform(20, 220, 200)])
+    shifted = xy + 3.0  # the matched keypoints sit 3 px off the same surface point
+    same = photometric(img.astype(np.uint8), img.astype(np.uint8), xy, shifted)
+    brighter = photometric(img.astype(np.uint8), np.clip(img * 1.25, 0, 255).astype(np.uint8),
+                           xy, shifted)
+    assert same.brightness_ratio == pytest.approx(1.0, abs=0.02)
+    assert brighter.brightness_ratio == pytest.approx(1.25, abs=0.03)
+    assert brighter.residual_med > 8  # the residual alone cannot tell it from misalignment
+    few = photometric(img.astype(np.uint8), img.astype(np.uint8), xy[:10], shifted[:10])
+    assert np.isnan(few.brightness_ratio)  # a median of ten patch ratios is not read
+
+
+def test_a_brightness_ratio_step_between_photographs_is_an_exposure_step(ruleset) -> None:
+    """1 Hz photographs: no residual baseline, no clean frames around the step, the frame mean
+    barely moves; the same surfaces 18 % darker with most matches verified is a step, the same
+    ratio with most matches wrong (a chequerboard) or a 4 % change is not."""
+    base = {"photo_residual_med": 18.0, "ratio_reject_rate": 0.8, "d_mean_intensity": -3.0,
+            "inlier_ratio": 0.8, "brightness_ratio": 1.0}
+    change = {i: dict(base) for i in range(1, 6)}
+    change[2] = {**base, "brightness_ratio": 0.82}
+    change[3] = {**base, "brightness_ratio": 1.34}
+    change[4] = {**base, "brightness_ratio": 0.82, "inlier_ratio": 0.3}
+    change[5] = {**base, "brightness_ratio": 1.04}
+    res = evaluate(frames(6, change, rate_hz=1.0), ruleset)
+    exp = hits(res, "exposure_step")
+    assert exp.tolist() == [False, False, True, True, False, False]
+    lines = next(e for e in explain_row(res, 4) if e.rule.id == "FD-EXP-001").check_lines
+    assert any("not trusted" in ln for ln in lines)
+
+
 # --- rotation without trusting K ----------------------------------------------------------------
 
 def _scene(n: int, seed: int, depth: tuple[float, float] = (2.0, 8.0)) -> np.ndarray:

@@ -14,6 +14,14 @@ symmetric fit returns 1.00 (and 1.19 / 0.80 for applied gains of 1.2 / 0.8). Pat
 clipped pixel (0 or 255) are left out of the fit, since a saturated pixel does not follow
 a*I + b, and one re-fit without the patches beyond 3 robust sigmas keeps a few wrong matches
 from dragging it.
+
+The brightness ratio is the median over the unclipped patches of mean(patch in I2) /
+mean(patch in I1): how much brighter the same surfaces are, the quantity an exposure or gain
+change multiplies. Unlike the pixel residual it needs the patches only to cover the same
+surface, not to align to the pixel, so it holds between frames far apart (photographs a second
+apart, a wide turn) where misalignment alone lifts the residual to 15-45 grey levels; unlike
+the frame mean it is not moved by the view showing a brighter or darker part of the scene. It is
+left out (NaN) under MIN_RATIO_PATCHES patches.
 """
 
 from __future__ import annotations
@@ -25,6 +33,8 @@ import numpy as np
 
 PATCH = 8
 MAX_PATCHES = 256  # 16k pixels: plenty for a median and a two-parameter fit
+MIN_RATIO_PATCHES = 16  # a median of fewer patch ratios is at the mercy of two wrong matches
+DARK_PATCH = 4.0  # a patch mean under 4 grey levels is sensor black: its ratio is noise
 
 
 @dataclass(frozen=True)
@@ -34,6 +44,7 @@ class Photometric:
     bias: float = float("nan")
     residual_affine_med: float = float("nan")
     n_patches: int = 0
+    brightness_ratio: float = float("nan")
 
 
 def _corners(shape: tuple[int, ...], xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -76,11 +87,12 @@ def photometric(prev: np.ndarray, cur: np.ndarray, xy_prev: np.ndarray, xy_cur: 
     res = float(np.median(np.abs(p2 - p1)))
     unclipped = ~(((p1 <= 0) | (p1 >= 255) | (p2 <= 0) | (p2 >= 255)).any(axis=1))
     q1, q2 = p1[unclipped], p2[unclipped]
+    ratio = _brightness_ratio(q1, q2)
     if len(q1) < 3:
-        return Photometric(res, n_patches=len(p1))
+        return Photometric(res, n_patches=len(p1), brightness_ratio=ratio)
     a, b = _fit_affine(q1, q2)
     if not math.isfinite(a):
-        return Photometric(res, n_patches=len(p1))
+        return Photometric(res, n_patches=len(p1), brightness_ratio=ratio)
     r = (q2 - (a * q1 + b)).mean(axis=1)  # per-patch mean residual
     mad = 1.4826 * float(np.median(np.abs(r - np.median(r))))
     keep = np.abs(r - np.median(r)) <= 3.0 * max(mad, 0.5)
@@ -89,4 +101,14 @@ def photometric(prev: np.ndarray, cur: np.ndarray, xy_prev: np.ndarray, xy_cur: 
         if math.isfinite(a2):
             a, b = a2, b2
     res_aff = float(np.median(np.abs(p2 - (a * p1 + b))))
-    return Photometric(res, a, b, res_aff, len(p1))
+    return Photometric(res, a, b, res_aff, len(p1), ratio)
+
+
+def _brightness_ratio(q1: np.ndarray, q2: np.ndarray) -> float:
+    """Median over patch pairs of mean(I2 patch) / mean(I1 patch); NaN under MIN_RATIO_PATCHES
+    pairs whose means are above sensor black."""
+    m1, m2 = q1.mean(axis=1), q2.mean(axis=1)
+    lit = (m1 >= DARK_PATCH) & (m2 >= DARK_PATCH)
+    if int(lit.sum()) < MIN_RATIO_PATCHES:
+        return float("nan")
+    return float(np.median(m2[lit] / m1[lit]))

@@ -356,6 +356,22 @@ def _affine_absorbs(df: pd.DataFrame, p: Params) -> np.ndarray:
         return res_aff < p["residual_affine_max"]
 
 
+def _ratio_step(df: pd.DataFrame, p: Params) -> np.ndarray:
+    """Rows where the same surfaces came out brighter or darker than in the previous frame by
+    at least the step ratio (brightness_ratio >= ratio_step or <= 1 / ratio_step), read only
+    where more than ratio_min_inliers of the correspondences are geometrically verified: the
+    ratio is a median over the matched patches, right only while most of them show the same
+    surface. It needs neither alignment to the pixel nor clean frames around it, so it reads
+    photographs a second apart and steps into darkness alike."""
+    if "ratio_step" not in p:
+        return np.zeros(len(df), dtype=bool)
+    r = col(df, "brightness_ratio")
+    w = col(df, "inlier_ratio")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        step = np.abs(np.log(r)) >= np.log(p["ratio_step"])
+        return step & (w > p.get("ratio_min_inliers", 0.5))
+
+
 def _exposure_step(df: pd.DataFrame, p: Params) -> np.ndarray:
     """One frame wide with clean frames on both sides, recovering within 2-3.
 
@@ -373,7 +389,7 @@ def _exposure_step(df: pd.DataFrame, p: Params) -> np.ndarray:
     with np.errstate(invalid="ignore"):
         candidate = (dm > p["dmean_step"]) & (
             ~(rej >= p["reject_max"]) | _affine_absorbs(df, p))
-    out = _dark_step(df, p)
+    out = _dark_step(df, p) | _ratio_step(df, p)
     base, sig = col(df, "photo_residual_base"), col(df, "photo_residual_base_sigma")
     for i in np.flatnonzero(candidate).tolist():
         jump, after = _step_at(i, res, rej, p, base, sig)
@@ -404,6 +420,19 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                        + ("far above, the exposure signature" if far else
                           f"not x{p['residual_jump']:g} and {p['baseline_sigmas']:g} sigma "
                           "above it"))
+    ratio, w = _v(row, "brightness_ratio"), _v(row, "inlier_ratio")
+    if "ratio_step" in p and not np.isnan(ratio):
+        line = p["ratio_step"]
+        beyond = ratio >= line or ratio <= 1 / line
+        trusted = not np.isnan(w) and w > p.get("ratio_min_inliers", 0.5)
+        out.append(f"brightness_ratio {ratio:.3f}: the same surfaces "
+                   f"{abs(ratio - 1) * 100:.0f}% {'brighter' if ratio >= 1 else 'darker'} than "
+                   f"in the previous frame, vs the step line {line:g} (or {1 / line:.3f})"
+                   + ("" if not beyond else
+                      ": a brightness step" if trusted else
+                      f", but only {w:.0%} of the correspondences are verified (needs > "
+                      f"{p.get('ratio_min_inliers', 0.5):.0%}): the median patch ratio is not "
+                      "trusted"))
     if _v(row, "dark_step") == 1.0:
         out.append(f"|d_mean_intensity| {abs(dm):.1f} > {p['dmean_dark']:g}, into or out of a "
                    "view where detection fails: a step into darkness or back, whatever "
@@ -802,19 +831,23 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
           "jumping with it, clean before and clean again within 2-3 frames",
           "frame", "camera",
           ("d_mean_intensity", "photo_residual_med", "ratio_reject_rate", "affine_gain",
-           "photo_residual_affine_med"),
+           "photo_residual_affine_med", "brightness_ratio", "inlier_ratio"),
           {"dmean_step": _NUM, "residual_step": _NUM, "residual_jump": _NUM,
            "residual_affine_max": _NUM, "reject_exposure": _NUM, "reject_max": _NUM,
            "recovery_frames": _NUM, "dmean_dark": _NUM, "fill_floor": _NUM,
-           "baseline_sigmas": _NUM, **_BASELINE_PARAMS},
-          {"d_mean_intensity": "absmax", "photo_residual_med": "max", "affine_gain": "absdev1"},
+           "baseline_sigmas": _NUM, "ratio_step": _NUM, "ratio_min_inliers": _NUM,
+           **_BASELINE_PARAMS},
+          {"d_mean_intensity": "absmax", "photo_residual_med": "max", "affine_gain": "absdev1",
+           "brightness_ratio": "absdev1"},
           {"dmean_step": "d_mean_intensity", "residual_step": "photo_residual_med",
            "reject_exposure": "ratio_reject_rate", "reject_max": "ratio_reject_rate",
            "residual_affine_max": "photo_residual_affine_med", "dmean_dark": "d_mean_intensity",
-           "fill_floor": "keypoint_fill"},
+           "fill_floor": "keypoint_fill", "ratio_step": "brightness_ratio",
+           "ratio_min_inliers": "inlier_ratio"},
           frame=_exposure_step, explain=_exposure_explain, context=_exposure_context,
           optional=frozenset({"residual_affine_max", "dmean_dark", "fill_floor",
-                              "baseline_sigmas", *_BASELINE_PARAMS}),
+                              "baseline_sigmas", "ratio_step", "ratio_min_inliers",
+                              *_BASELINE_PARAMS}),
           baseline=_exposure_baseline),
     Check("he_parallax_quadrant", "H/E inlier ratio x median parallax separates pure "
           "rotation, a planar scene, a nearly stationary camera and healthy motion",
