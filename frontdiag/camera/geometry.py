@@ -236,35 +236,6 @@ ROT_FOCAL_STEPS = 13
 ROT_SEARCH_POINTS = 200
 
 
-def _wahba(f_ref: np.ndarray, f_cur: np.ndarray) -> np.ndarray:
-    """The rotation R minimising sum |f_cur - R f_ref|^2 (Kabsch / Wahba, via SVD)."""
-    U, _, Vt = np.linalg.svd(f_cur.T @ f_ref)
-    d = np.sign(np.linalg.det(U @ Vt)) or 1.0
-    return U @ np.diag([1.0, 1.0, d]) @ Vt
-
-
-def _rotation_residual_px(p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray) -> float:
-    """Median transfer error (px) of the best rotation x_cur ~ K R K^-1 x_ref, one re-fit
-    without the points beyond three times the median (mismatches)."""
-    f_ref, f_cur = bearings(p_ref, K), bearings(p_cur, K)
-    R = _wahba(f_ref, f_cur)
-    res = _transfer_px(f_ref, p_cur, R, K)
-    keep = res <= 3.0 * max(float(np.median(res)), 0.5)
-    if keep.sum() >= E_SAMPLE:
-        R = _wahba(f_ref[keep], f_cur[keep])
-        res = _transfer_px(f_ref, p_cur, R, K)
-    return float(np.median(res))
-
-
-def _transfer_px(f_ref: np.ndarray, p_cur: np.ndarray, R: np.ndarray, K: np.ndarray
-                 ) -> np.ndarray:
-    q = f_ref @ R.T @ K.T
-    with np.errstate(divide="ignore", invalid="ignore"):
-        xy = q[:, :2] / q[:, 2:3]
-    res = np.linalg.norm(xy - p_cur, axis=1)
-    return np.where(q[:, 2] > 0, res, np.inf)
-
-
 def rotation_only_fit(p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray
                       ) -> tuple[float, float]:
     """How well a pure rotation explains the correspondences when K may be approximate.
@@ -277,6 +248,7 @@ def rotation_only_fit(p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray
     smallest median transfer error in pixels is returned with the focal scale that gives it.
     A translating camera leaves a residual that no rotation and focal remove (depth-dependent
     parallax, or the expansion of an approach); a pure rotation leaves localisation noise.
+    Every focal of a search step is fitted at once (stacked arrays, one batched SVD).
     """
     if len(p_ref) < E_SAMPLE:
         return float("nan"), float("nan")
@@ -286,23 +258,57 @@ def rotation_only_fit(p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray
     lo, hi = np.log(ROT_FOCAL_RANGE[0]), np.log(ROT_FOCAL_RANGE[1])
     grid = np.linspace(lo, hi, ROT_FOCAL_STEPS)
     step = grid[1] - grid[0]
-    best_log, best = 0.0, float("inf")
-    for candidates in (grid, None):
-        if candidates is None:
-            candidates = np.clip(best_log + np.linspace(-step, step, 5), lo, hi)
-        for g in candidates:
-            r = _rotation_residual_px(p_ref[sub], p_cur[sub], _scaled(K, float(np.exp(g))))
-            if r < best:
-                best, best_log = r, float(g)
+    res = _rotation_residuals_px(p_ref[sub], p_cur[sub], K, np.exp(grid))
+    best_log = float(grid[int(np.argmin(res))])  # first of equals, as a scan in order keeps
+    fine = np.clip(best_log + np.linspace(-step, step, 5), lo, hi)
+    res_fine = _rotation_residuals_px(p_ref[sub], p_cur[sub], K, np.exp(fine))
+    if float(res_fine.min()) < float(res.min()):
+        best_log = float(fine[int(np.argmin(res_fine))])
     s_best = float(np.exp(best_log))
-    return _rotation_residual_px(p_ref, p_cur, _scaled(K, s_best)), s_best
+    return float(_rotation_residuals_px(p_ref, p_cur, K, np.array([s_best]))[0]), s_best
 
 
-def _scaled(K: np.ndarray, s: float) -> np.ndarray:
-    Ks = K.copy()
-    Ks[0, 0] *= s
-    Ks[1, 1] *= s
-    return Ks
+def _rotation_residuals_px(p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray,
+                           scales: np.ndarray) -> np.ndarray:
+    """Per focal scale: the median transfer error (px) of the best rotation
+    x_cur ~ K_s R K_s^-1 x_ref, with one re-fit without the points beyond three times the
+    median (mismatches)."""
+    fx, fy = K[0, 0] * scales, K[1, 1] * scales  # (S,)
+    cx, cy = K[0, 2], K[1, 2]
+
+    def bear(p: np.ndarray) -> np.ndarray:  # (S, N, 3) unit bearings at every focal
+        f = np.empty((len(scales), len(p), 3))
+        f[:, :, 0] = (p[None, :, 0] - cx) / fx[:, None]
+        f[:, :, 1] = (p[None, :, 1] - cy) / fy[:, None]
+        f[:, :, 2] = 1.0
+        return f / np.linalg.norm(f, axis=2, keepdims=True)
+
+    f_ref, f_cur = bear(p_ref), bear(p_cur)
+
+    def wahba(w: np.ndarray) -> np.ndarray:  # (S, 3, 3) rotations, weights (S, N)
+        U, _, Vt = np.linalg.svd((f_cur * w[:, :, None]).transpose(0, 2, 1) @ f_ref)
+        d = np.sign(np.linalg.det(U @ Vt))
+        d[d == 0] = 1.0
+        D = np.zeros((len(scales), 3, 3))
+        D[:, 0, 0] = D[:, 1, 1] = 1.0
+        D[:, 2, 2] = d
+        return U @ D @ Vt
+
+    def transfer(R: np.ndarray) -> np.ndarray:  # (S, N) pixels
+        q = f_ref @ R.transpose(0, 2, 1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            x = fx[:, None] * q[:, :, 0] / q[:, :, 2] + cx
+            y = fy[:, None] * q[:, :, 1] / q[:, :, 2] + cy
+        r = np.hypot(x - p_cur[None, :, 0], y - p_cur[None, :, 1])
+        return np.where(q[:, :, 2] > 0, r, np.inf)
+
+    res = transfer(wahba(np.ones(f_ref.shape[:2])))
+    keep = res <= 3.0 * np.maximum(np.median(res, axis=1), 0.5)[:, None]
+    refit = keep.sum(axis=1) >= E_SAMPLE
+    if refit.any():
+        res2 = transfer(wahba(keep.astype(float)))
+        res = np.where(refit[:, None], res2, res)
+    return np.median(res, axis=1)
 
 
 def two_view(p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray | None, *,
