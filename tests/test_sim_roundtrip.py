@@ -171,3 +171,22 @@ def test_sample_logs_are_complete_small_and_labelled() -> None:
         total += sum(f.stat().st_size for f in path.rglob("*")) if path.is_dir() \
             else path.stat().st_size
     assert total <= 25_000_000
+
+
+@pytest.mark.parametrize("seconds", [12.0, 100.0, 300.0])
+def test_healthy_loop_plan_covers_many_laps(seconds: float) -> None:
+    """The lap plan is built per lap from distances: runs of several laps (over ~60 s this
+    used to loop forever on a zero-length piece at a lap's end) cover exactly the asked time,
+    alternate long sides (healthy) and turns (unlabelled), and start each lap on a long side."""
+    from frontdiag.sim.scenarios import _LOOP, _healthy_loop
+
+    segs = _healthy_loop(seconds)[0].segments
+    assert sum(s.duration for s in segs) == pytest.approx(seconds, abs=1e-9)
+    assert all(s.duration > 0 for s in segs)
+    cams = [s.camera for s in segs]
+    assert cams[::2] == ["healthy"] * len(cams[::2]) and set(cams[1::2]) <= {None}
+    lap_s = _LOOP.length / 1.2
+    starts = np.cumsum([0.0] + [s.duration for s in segs[:-1]])
+    laps = int(seconds // lap_s)
+    for k in range(1, laps + 1):  # a piece starts exactly at every lap boundary
+        assert np.min(np.abs(starts - k * lap_s)) < 1e-6

@@ -253,20 +253,20 @@ def _healthy_loop(seconds: float) -> list[Part]:
     so which label applies is a matter of taste and those frames are left unlabelled. The
     LiDAR sees the whole hall and stays healthy throughout."""
     v = 1.2
+    # pieces of one lap by distance: the long sides and the turns between them. Boundaries are
+    # computed per lap from the lap's start (not accumulated), so float rounding at a lap's end
+    # can never leave a zero-length piece to repeat forever.
+    cuts = sorted({0.0, _LOOP.length, *(x for side in _LOOP.long_sides for x in side)})
+    pieces = [(a, b, "healthy" if any(la <= a and b <= lb for la, lb in _LOOP.long_sides)
+               else None) for a, b in zip(cuts, cuts[1:], strict=False) if b - a > 1e-9]
     segs: list[Segment] = []
-    t = 0.0
-    while t < seconds - 1e-9:
-        s = (v * t) % _LOOP.length
-        lap0 = v * t - s
-        on_long = [b for a, b in _LOOP.long_sides if a <= s < b]
-        if on_long:
-            s_end, cam = on_long[0], "healthy"
-        else:
-            s_end = min([a for a, _ in _LOOP.long_sides if a > s] + [_LOOP.length])
-            cam = None
-        dur = min(seconds - t, (lap0 + s_end) / v - t)
-        segs.append(Segment(dur, _LOOP.motion(v * t, v), camera=cam))
-        t += dur
+    for lap in range(int(np.ceil(v * seconds / _LOOP.length)) + 1):
+        for a, b, cam in pieces:
+            t0 = (lap * _LOOP.length + a) / v
+            if t0 >= seconds - 1e-9:
+                return [Part(hall, segs, name="hall")]
+            t1 = min((lap * _LOOP.length + b) / v, seconds)
+            segs.append(Segment(t1 - t0, _LOOP.motion(v * t0, v), camera=cam))
     return [Part(hall, segs, name="hall")]
 
 
