@@ -44,9 +44,15 @@ MIN_WINDOW_FRAMES = 50  # below this per window, one process is faster than the 
 
 def plan_windows(n_frames: int, jobs: int, overlap: int) -> list[FrameWindow]:
     """``jobs`` consecutive windows over ``n_frames`` camera messages, each warmed up on up to
-    ``overlap`` messages before it (fewer windows when the recording is short)."""
+    ``overlap`` messages before it (fewer windows when the recording is short).
+
+    The cuts give every window the same work, warm-up included: the first window has none, so it
+    owns ``overlap`` frames more than the others. With equal cuts the slowest window would be
+    the one with a warm-up, ``n/k + overlap`` frames, and the first worker would idle for the
+    difference."""
     k = max(1, min(jobs, n_frames // max(MIN_WINDOW_FRAMES, overlap)))
-    bounds = [round(i * n_frames / k) for i in range(k + 1)]
+    work = (n_frames + (k - 1) * overlap) / k  # frames each window runs, warm-up included
+    bounds = [0] + [round(i * work - (i - 1) * overlap) for i in range(1, k)] + [n_frames]
     return [FrameWindow(warm_from=max(0, bounds[i] - overlap), own_from=bounds[i],
                         own_to=None if i == k - 1 else bounds[i + 1]) for i in range(k)]
 

@@ -20,9 +20,15 @@ def _same_table(a: pd.DataFrame, b: pd.DataFrame) -> None:
 
 def test_windows_cover_every_frame_once() -> None:
     ws = plan_windows(1000, 3, 60)
-    assert [w.own_from for w in ws] == [0, 333, 667]
-    assert [w.own_to for w in ws] == [333, 667, None]
-    assert [w.warm_from for w in ws] == [0, 273, 607]
+    # equal work per window, warm-up included: (1000 + 2 * 60) / 3 = 373.3 frames each, so the
+    # first window (no warm-up) owns 373 frames and the others 313 + 60 warm-up
+    assert [w.own_from for w in ws] == [0, 373, 687]
+    assert [w.own_to for w in ws] == [373, 687, None]
+    assert [w.warm_from for w in ws] == [0, 313, 627]
+    runs = [(w.own_to or 1000) - w.warm_from for w in ws]
+    assert max(runs) - min(runs) <= 1
+    two = plan_windows(1200, 2, 60)
+    assert [(w.warm_from, w.own_from, w.own_to) for w in two] == [(0, 0, 630), (570, 630, None)]
     assert len(plan_windows(100, 4, 60)) == 1  # too short to pay for a warm-up
 
 
