@@ -26,7 +26,7 @@ from typing import Any
 import pandas as pd
 
 from frontdiag import __version__
-from frontdiag.errors import EXIT_INTERNAL, EXIT_OK, ConfigError, FrontdiagError
+from frontdiag.errors import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, ConfigError, FrontdiagError
 
 log = logging.getLogger(__name__)
 
@@ -132,7 +132,14 @@ def analyse_one(task: Task) -> dict[str, Any]:
     whose folder already holds a result of the same content, rules and options is skipped."""
     import cv2
 
+    from frontdiag.parallel import interruptible
+
     cv2.setNumThreads(1)  # the tasks are the parallelism
+    with interruptible():
+        return _analyse_one(task)
+
+
+def _analyse_one(task: Task) -> dict[str, Any]:
     t0 = time.perf_counter()
     name = task.out.name
     row: dict[str, Any] = {"recording": name, "path": str(task.path)}
@@ -178,10 +185,12 @@ def _analyse(task: Task) -> dict[str, Any]:
         g = gate(result.verdicts, fail_on=task.fail_on)  # type: ignore[arg-type]
         row.update(episodes=len(result.verdicts.episodes),
                    gate="passed" if g.passed else "failed", exit_code=g.exit_code)
-    if result.fault is not None:  # damage part-way: the frames before it are kept
-        row.update(error=str(result.fault), exit_code=result.fault.exit_code)
+    # the frames before the damage or the interruption are kept, but their verdicts cover only
+    # part of the recording: such a gate is never "passed"
+    if result.fault is not None:
+        row.update(error=str(result.fault), exit_code=result.fault.exit_code, gate="incomplete")
     elif result.interrupted:
-        row.update(error="interrupted", exit_code=130)
+        row.update(error="interrupted", exit_code=EXIT_INTERRUPTED, gate="incomplete")
     return row
 
 
@@ -219,23 +228,53 @@ def plan_tasks(inputs: Iterable[str | Path], out: Path, opts: Any, *, fail_on: s
 RowFn = Callable[[dict[str, Any]], None]
 
 
-def run_local(tasks: list[Task], jobs: int, on_row: RowFn | None = None) -> list[dict[str, Any]]:
-    """The tasks on ``jobs`` local processes (in this process when ``jobs`` is 1)."""
-    rows: list[dict[str, Any] | None] = [None] * len(tasks)
-    if jobs <= 1 or len(tasks) == 1:
-        for i, t in enumerate(tasks):
-            rows[i] = analyse_one(t)
-            if on_row:
-                on_row(rows[i])  # type: ignore[arg-type]
-    else:
-        from frontdiag.parallel import _context
+def interrupted(row: dict[str, Any]) -> bool:
+    """Whether a recording's analysis was stopped by Ctrl-C (or SIGTERM)."""
+    return row.get("error") == "interrupted"
 
-        with ProcessPoolExecutor(max_workers=jobs, mp_context=_context()) as pool:
-            futs = {pool.submit(analyse_one, t): i for i, t in enumerate(tasks)}
+
+def run_local(tasks: list[Task], jobs: int, on_row: RowFn | None = None) -> list[dict[str, Any]]:
+    """The tasks on ``jobs`` local processes (in this process when ``jobs`` is 1).
+
+    Ctrl-C stops the fleet: no further recording is started, the recordings being analysed keep
+    the frames analysed so far (a row marked interrupted), and the rows of the finished ones are
+    returned, so the caller can write the summary of what was done."""
+    rows: list[dict[str, Any] | None] = [None] * len(tasks)
+
+    def take(i: int, row: dict[str, Any]) -> bool:
+        rows[i] = row
+        if on_row:
+            on_row(row)
+        return interrupted(row)
+
+    if jobs <= 1 or len(tasks) == 1:
+        try:
+            for i, t in enumerate(tasks):
+                if take(i, analyse_one(t)):
+                    break
+        except KeyboardInterrupt:  # between two recordings, or while writing one's results
+            pass
+    else:
+        from frontdiag.parallel import _context, drain, worker_init
+
+        pool = ProcessPoolExecutor(max_workers=jobs, mp_context=_context(),
+                                   initializer=worker_init)
+        futs = {pool.submit(analyse_one, t): i for i, t in enumerate(tasks)}
+        stop = False
+        try:
             for fut in as_completed(futs):
-                rows[futs[fut]] = fut.result()
-                if on_row:
-                    on_row(rows[futs[fut]])  # type: ignore[arg-type]
+                if take(futs[fut], fut.result()):
+                    stop = True
+                    break
+        except KeyboardInterrupt:
+            stop = True
+        finally:
+            if stop:  # queued recordings never start; running ones hand back their frames
+                drain(pool, list(futs))
+            pool.shutdown(wait=not stop, cancel_futures=stop)
+        for fut, i in futs.items():
+            if rows[i] is None and fut.done() and not fut.cancelled() and fut.exception() is None:
+                take(i, fut.result())
     return [r for r in rows if r is not None]
 
 
@@ -268,10 +307,13 @@ def run_dask(tasks: list[Task], scheduler: str, jobs: int, on_row: RowFn | None 
         futs = client.map(analyse_one, tasks, pure=False)
         index = {f.key: i for i, f in enumerate(futs)}
         rows: list[dict[str, Any] | None] = [None] * len(tasks)
-        for fut in dask_completed(futs):
-            rows[index[fut.key]] = fut.result()
-            if on_row:
-                on_row(rows[index[fut.key]])  # type: ignore[arg-type]
+        try:
+            for fut in dask_completed(futs):
+                rows[index[fut.key]] = fut.result()
+                if on_row:
+                    on_row(rows[index[fut.key]])  # type: ignore[arg-type]
+        except KeyboardInterrupt:  # stop the fleet: what finished is kept, the rest cancelled
+            client.cancel([f for f in futs if rows[index[f.key]] is None])
         return [r for r in rows if r is not None]
     finally:
         client.close()

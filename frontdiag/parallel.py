@@ -19,7 +19,9 @@ from __future__ import annotations
 
 import logging
 import multiprocessing as mp
+from collections.abc import Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -65,6 +67,73 @@ def _context() -> Any:
     return ctx
 
 
+def worker_init() -> None:
+    """Pool workers ignore Ctrl-C while they wait for a task (an idle worker has nothing to
+    keep and would only print a traceback); :func:`interruptible` re-arms it for a task."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+@contextmanager
+def interruptible() -> Iterator[None]:
+    """In a pool worker (see :func:`worker_init`): Ctrl-C and SIGTERM during the block raise
+    KeyboardInterrupt, which the pass turns into "interrupted, frames so far kept". Elsewhere
+    (the main process, a Dask worker's thread) nothing changes."""
+    import signal
+    import threading
+
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is not signal.SIG_IGN):
+        yield
+        return
+
+    def interrupt(signum: int, frame: Any) -> None:
+        raise KeyboardInterrupt
+
+    old_term = signal.signal(signal.SIGTERM, interrupt)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        signal.signal(signal.SIGTERM, old_term)
+
+
+DRAIN_GRACE_S = 5.0  # how long an interrupted worker gets to hand back its frames
+
+
+def drain(pool: ProcessPoolExecutor, futures: list[Future[Any]],
+          grace_s: float = DRAIN_GRACE_S) -> None:
+    """After Ctrl-C (or SIGTERM) in this process: nothing queued starts, and the running tasks
+    end their pass and return what they computed.
+
+    A Ctrl-C in a terminal reaches every process of its group, so the workers stop by
+    themselves within a frame. A signal to this process alone (``kill``, a supervisor's
+    SIGTERM) does not reach them: they are sent SIGINT, which their pass handles the same way.
+    A worker that still has not answered after the grace period is terminated (its task is
+    lost); a second Ctrl-C ends the wait at once."""
+    import os
+    import signal
+    from concurrent.futures import wait
+
+    for f in futures:
+        f.cancel()  # only those not yet running
+    procs = list((getattr(pool, "_processes", None) or {}).values())
+    try:
+        _, pending = wait(futures, timeout=grace_s / 5)
+        if pending:
+            for proc in procs:
+                if proc.is_alive() and proc.pid is not None:
+                    os.kill(proc.pid, signal.SIGINT)
+            wait(pending, timeout=grace_s)
+    except KeyboardInterrupt:
+        pass
+    for proc in procs:
+        if proc.is_alive():
+            proc.terminate()
+
+
 def _task(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
           frames: FrameWindow | None, resume: Any = None, until_keys: dict[int, Any] | None = None
           ) -> StreamRun:
@@ -73,7 +142,7 @@ def _task(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
 
     cv2.setNumThreads(1)  # one core per worker: the workers are the parallelism
     until = None if until_keys is None else (lambda f, key: until_keys.get(f) == key)
-    with open_recording(path) as rec:
+    with interruptible(), open_recording(path) as rec:
         run = run_stream(rec, choice, opts, intr, frames=frames, resume=resume, until=until,
                          record_keys=frames is not None,
                          want_end_state=frames is not None)
@@ -109,28 +178,38 @@ def run_windows(path: Path, rec: Recording, choice: TopicChoice, opts: Any,
     runs: list[StreamRun | None] = [None] * len(windows)
     lid_run: StreamRun | None = None
     interrupted = False
-    with ProcessPoolExecutor(max_workers=opts.jobs, mp_context=_context()) as pool:
-        futs: dict[Future[StreamRun], int] = {
-            pool.submit(_task, path, cam_choice, opts, intr, w): i
-            for i, w in enumerate(windows)}
-        lid_fut = pool.submit(_task, path, lid_choice, opts, intr, None) if choice.lidar else None
-        done = 0
-        try:
-            from concurrent.futures import as_completed
+    pool = ProcessPoolExecutor(max_workers=opts.jobs, mp_context=_context(),
+                               initializer=worker_init)
+    futs: dict[Future[StreamRun], int] = {
+        pool.submit(_task, path, cam_choice, opts, intr, w): i for i, w in enumerate(windows)}
+    lid_fut = pool.submit(_task, path, lid_choice, opts, intr, None) if choice.lidar else None
+    all_futs: list[Future[StreamRun]] = [*futs, *([lid_fut] if lid_fut else [])]
+    done = 0
+    try:
+        from concurrent.futures import as_completed
 
-            all_futs: list[Future[StreamRun]] = [*futs, *([lid_fut] if lid_fut else [])]
-            for fut in as_completed(all_futs):
-                run = fut.result()
+        for fut in as_completed(all_futs):
+            run = fut.result()
+            if fut is lid_fut:
+                lid_run = run
+            else:
+                runs[futs[fut]] = run
+            done += len(run.rows)
+            if progress:
+                progress(done, expected or None)
+    except KeyboardInterrupt:
+        # Each window's worker keeps the frames it analysed before the interruption (as one
+        # pass would): collect them, so the windows up to the interrupted one are kept.
+        interrupted = True
+        drain(pool, all_futs)
+        for fut in all_futs:
+            if fut.done() and not fut.cancelled() and fut.exception() is None:
                 if fut is lid_fut:
-                    lid_run = run
-                else:
-                    runs[futs[fut]] = run
-                done += len(run.rows)
-                if progress:
-                    progress(done, expected or None)
-        except KeyboardInterrupt:
-            interrupted = True
-            pool.shutdown(wait=False, cancel_futures=True)
+                    lid_run = fut.result()
+                elif runs[futs[fut]] is None:
+                    runs[futs[fut]] = fut.result()
+    finally:
+        pool.shutdown(wait=not interrupted, cancel_futures=interrupted)
     cam_rows, cam_stream, fault, cut = _stitch(path, cam_choice, opts, intr, windows, runs)
     rows = list(cam_rows)
     lid_stream = None

@@ -7,6 +7,7 @@ import io
 import json
 import xml.etree.ElementTree as ET
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -56,22 +57,32 @@ def test_quiet_keeps_the_gates_reasons_on_stderr(tmp_path: Path,
     assert "gate failed" in err and "FD-" in err
 
 
-def test_interrupted_json_is_marked_and_never_passes(
-        tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
-) -> None:
+def _at_frame(monkeypatch: pytest.MonkeyPatch, n: int, action: Any) -> dict[str, int]:
+    """Make the camera frontend call ``action()`` when it is handed its n-th frame."""
     from frontdiag.camera import frontend
 
-    log = write_recording(tmp_path / "run.mcap", "mcap", n=6)
     real = frontend.CameraFrontend.process
     calls = {"n": 0}
 
     def process(self, frame):  # type: ignore[no-untyped-def]
         calls["n"] += 1
-        if calls["n"] == 4:
-            raise KeyboardInterrupt
+        if calls["n"] == n:
+            action()
         return real(self, frame)
 
     monkeypatch.setattr(frontend.CameraFrontend, "process", process)
+    return calls
+
+
+def _ctrl_c() -> None:
+    raise KeyboardInterrupt
+
+
+def test_interrupted_json_is_marked_and_never_passes(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    log = write_recording(tmp_path / "run.mcap", "mcap", n=6)
+    calls = _at_frame(monkeypatch, 4, _ctrl_c)
     code, out, _ = run(["analyze", str(log), "--json", "--fail-on", "never"], capsys)
     assert code == 130
     data = json.loads(out)
@@ -209,3 +220,22 @@ def test_every_command_prints_through_the_non_truncating_console() -> None:
                  if p.name != "_console.py" and "Console(" in p.read_text().replace(
                      "make_console(", "")]
     assert offenders == []
+
+
+def test_sigterm_ends_the_run_like_ctrl_c_and_keeps_the_frames(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import os
+    import signal
+
+    log = write_recording(tmp_path / "run.mcap", "mcap", n=8)
+    # a CI timeout, `timeout`, a supervisor
+    _at_frame(monkeypatch, 5, lambda: os.kill(os.getpid(), signal.SIGTERM))
+    before = signal.getsignal(signal.SIGTERM)
+    code, out, _ = run(["analyze", str(log), "--json", "--out", str(tmp_path / "res")], capsys)
+    assert code == 130
+    data = json.loads(out)
+    assert data["interrupted"] is True and data["verdicts"]["gate"]["passed"] is False
+    kept = pd.read_parquet(tmp_path / "res" / "frames.parquet")
+    assert 3 <= len(kept) < 8
+    assert signal.getsignal(signal.SIGTERM) is before  # the handler is not left behind

@@ -77,3 +77,44 @@ def test_dask_local_cluster_gives_the_local_summary(logs: Path, tmp_path: Path) 
     b = pd.read_parquet(tmp_path / "b" / "r0" / "frames.parquet")
     cols = [c for c in a.columns if not c.startswith("ms_")]
     pd.testing.assert_frame_equal(a[cols], b[cols])
+
+
+def test_ctrl_c_stops_the_fleet_and_keeps_what_was_done(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from frontdiag.camera import frontend
+
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    for i in range(3):
+        write_recording(logs / f"r{i}.mcap", "mcap", n=12, seed=i, shift=1 + i)
+    real = frontend.CameraFrontend.process
+    calls = {"n": 0}
+
+    def process(self, frame):  # type: ignore[no-untyped-def]
+        calls["n"] += 1
+        if calls["n"] == 12 + 5:  # the 5th frame of the second recording
+            raise KeyboardInterrupt
+        return real(self, frame)
+
+    monkeypatch.setattr(frontend.CameraFrontend, "process", process)
+    out = tmp_path / "out"
+    code = main(["analyze", str(logs), "--out", str(out), "--jobs", "1", "--json"])
+    doc = json.loads(capsys.readouterr().out)
+    assert code == 130 and doc["exit_code"] == 130
+    assert doc["interrupted"] is True and doc["not_analysed"] == 1
+    by = {r["recording"]: r for r in doc["recordings"]}
+    assert set(by) == {"r0", "r1"}  # r2 was never started
+    assert by["r0"]["status"] == "ok" and by["r0"]["frames"] == 12
+    assert by["r1"]["error"] == "interrupted" and by["r1"]["gate"] == "incomplete"
+    assert 0 < by["r1"]["frames"] < 12  # the frames before Ctrl-C were kept
+    assert len(_summary(out)) == 2
+    assert not (out / "r2" / "frames.parquet").exists()
+    # the same command again goes on: r0 skipped, r1 analysed again, r2 analysed
+    monkeypatch.setattr(frontend.CameraFrontend, "process", real)
+    code = main(["analyze", str(logs), "--out", str(out), "--jobs", "1", "--json"])
+    doc = json.loads(capsys.readouterr().out)
+    by = {r["recording"]: r for r in doc["recordings"]}
+    assert doc["interrupted"] is False and code in (0, 1)
+    assert [by[n]["status"] for n in ("r0", "r1", "r2")] == ["skipped", "ok", "ok"]
+    assert by["r1"]["frames"] == 12

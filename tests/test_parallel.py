@@ -76,3 +76,27 @@ def test_damage_gives_the_serial_frames_and_fault(tmp_path: Path, kind: str) -> 
     else:
         assert 60 < len(serial.table) < 120  # the damage is inside the second window
     _same_table(serial.table, par.table)
+
+
+def test_interrupted_windows_keep_the_frames_before_the_interruption(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    # Ctrl-C reaches the main process while the workers run: the workers are told to stop
+    # (SIGINT) and hand back their frames; what is kept is the start of the serial table
+    import concurrent.futures
+
+    path = write_recording(tmp_path / "run.mcap", "mcap", n=150, shift=1)
+    serial = run_analysis(path, AnalysisOptions())
+
+    def interrupted_wait(fs, timeout=None):  # type: ignore[no-untyped-def]
+        raise KeyboardInterrupt
+        yield  # a generator, like the real one
+
+    monkeypatch.setattr(concurrent.futures, "as_completed", interrupted_wait)
+    par = run_analysis(path, AnalysisOptions(jobs=2))
+    assert par.interrupted
+    assert 0 < len(par.table) <= len(serial.table)
+    # the recording's own baselines (ratio_reject_base, ...) are read over the rows a run
+    # has, so they differ on a shorter run; every frontend reading is the serial one
+    cols = [c for c in par.table.columns if "_base" not in c]
+    _same_table(serial.table.iloc[:len(par.table)][cols].reset_index(drop=True),
+                par.table[cols].reset_index(drop=True))

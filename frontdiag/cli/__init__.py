@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import logging
 import sys
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import typer
 from rich.console import Console
@@ -151,12 +151,39 @@ def hoist_root_flags(args: list[str]) -> list[str]:
     return ["--debug", *[a for a in args[:end] if a != "--debug"], *args[end:]]
 
 
+def _terminate_as_interrupt() -> Any:
+    """SIGTERM (a CI job's timeout, ``timeout``, a supervisor stopping the job) ends the run
+    the way Ctrl-C does: the frames analysed so far are kept and written, exit 130. Only when
+    nothing else handles SIGTERM (an embedding program's handler is left alone); returns the
+    handler to restore, or None."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    try:
+        previous = signal.getsignal(signal.SIGTERM)
+        if previous is not signal.SIG_DFL:
+            return None
+
+        def interrupt(signum: int, frame: Any) -> None:
+            raise KeyboardInterrupt
+
+        signal.signal(signal.SIGTERM, interrupt)
+    except (AttributeError, ValueError, OSError):
+        return None
+    return previous
+
+
 def main(argv: list[str] | None = None) -> int:
     """Console entry point; returns the process exit code."""
+    import signal
+
     args = sys.argv[1:] if argv is None else list(argv)
     args = hoist_root_flags(args)
     debug = "--debug" in args
     err = _err_console()
+    restore = _terminate_as_interrupt()
     try:
         rv = typer.main.get_command(app).main(args=args, prog_name="frontdiag",
                                                standalone_mode=False)
@@ -187,6 +214,8 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_INTERNAL
     finally:
         ConsoleWarnings.flush()
+        if restore is not None:
+            signal.signal(signal.SIGTERM, restore)
     if isinstance(rv, int):
         return rv
     return EXIT_OK

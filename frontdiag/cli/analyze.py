@@ -297,7 +297,7 @@ def _incomplete(gate_result: Any, result: Any) -> Any:
     from frontdiag.errors import EXIT_INTERRUPTED
 
     if result.interrupted:
-        why, code = "interrupted: the verdicts cover only the frames analysed before Ctrl-C", \
+        why, code = "interrupted: the verdicts cover only the frames analysed before Ctrl-C (or SIGTERM)", \
             EXIT_INTERRUPTED
     else:
         why, code = f"input damaged: the verdicts cover only the frames before it ({result.fault})", \

@@ -8,7 +8,7 @@ from typing import Any
 
 import typer
 
-from frontdiag.errors import ConfigError
+from frontdiag.errors import EXIT_INTERRUPTED, ConfigError
 
 
 def is_fleet(logs: list[Path], scheduler: str | None) -> bool:
@@ -56,11 +56,20 @@ def run_fleet(logs: list[Path], out: Path | None, opts: Any, *, jobs: int,
             rows = fleet.run_local(tasks, jobs, on_row)
     path = fleet.write_summary(out, rows)
     code = fleet.worst_exit(rows)
+    not_run = len(tasks) - len(rows)
+    stopped = not_run > 0 or any(fleet.interrupted(r) for r in rows)
+    if stopped:
+        code = max(code, EXIT_INTERRUPTED)
     if as_json:
-        typer.echo(json.dumps({"summary": str(path), "exit_code": code, "recordings": rows},
+        typer.echo(json.dumps({"summary": str(path), "exit_code": code, "interrupted": stopped,
+                               "not_analysed": not_run, "recordings": rows},
                               indent=2, default=str))
     elif not quiet:
         render_summary(make_console(), rows, path)
+    if stopped:
+        err.print(f"[yellow]interrupted[/]: {len(rows)} of {len(tasks)} recordings in the "
+                  f"summary, {not_run} not analysed; run the same command again to go on "
+                  "(finished recordings are skipped, interrupted ones analysed again)")
     return code
 
 
@@ -78,7 +87,8 @@ def render_summary(con: Any, rows: list[dict[str, Any]], path: Path) -> None:
         cov = "" if r["coverage"] is None else f"{100 * r['coverage']:.0f} %"
         status = {"ok": "ok", "skipped": "[dim]skipped[/]",
                   "error": "[red]error[/]"}[r["status"]]
-        gate = {"passed": "[green]passed[/]", "failed": "[red]failed[/]"}.get(r["gate"], "")
+        gate = {"passed": "[green]passed[/]", "failed": "[red]failed[/]",
+                "incomplete": "[yellow]incomplete[/]"}.get(r["gate"], "")
         t.add_row(escape(r["recording"]), status, str(r["frames"]), cov, str(r["ok"]),
                   str(r["warn"]), str(r["fail"]), str(r["episodes"]), gate,
                   f"{r['seconds']:.1f}")
