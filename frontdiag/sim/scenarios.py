@@ -13,6 +13,7 @@ Motion functions map segment-local time (s) to ``(x, y, yaw, pan)`` in the part'
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -258,7 +259,7 @@ def _healthy_loop(seconds: float) -> list[Part]:
     # can never leave a zero-length piece to repeat forever.
     cuts = sorted({0.0, _LOOP.length, *(x for side in _LOOP.long_sides for x in side)})
     pieces = [(a, b, "healthy" if any(la <= a and b <= lb for la, lb in _LOOP.long_sides)
-               else None) for a, b in zip(cuts, cuts[1:], strict=False) if b - a > 1e-9]
+               else None) for a, b in itertools.pairwise(cuts) if b - a > 1e-9]
     segs: list[Segment] = []
     for lap in range(int(np.ceil(v * seconds / _LOOP.length)) + 1):
         for a, b, cam in pieces:
