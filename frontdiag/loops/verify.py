@@ -92,6 +92,23 @@ def map_test(result: LoopAudit, P: F, in_map: NDArray[np.bool_], seed: int = 0) 
             "residual_deg": np.degrees(lie.rotation_angle(R))}
 
 
+# How much more certain than the chain the map must be between a loop's poses before its test
+# may overrule the chain's refusal. At p = 1e-6 the Hotelling test on N_DRAWS = 64 draws needs
+# T² 1.32x (2D) to 1.46x (3D) the chi2 value, so the same lie must sit 1.15-1.21x further out
+# in σ units; the map σ itself is sampled from 64 draws (~9 % error, three of them 1.27x).
+# 1.21 x 1.27 = 1.54: the map must halve the chain's σ.
+STIFFER = 0.5
+
+
+def _stiffer(res: dict[str, F], chain_sigma: F) -> NDArray[np.bool_]:
+    """Whether the map is clearly more certain between a loop's poses than its odometry chain
+    (σ at most ``STIFFER`` x the chain's, both in the file's units, before the variance
+    factor)."""
+    raw = res["map_sigma_m"] / np.sqrt(np.maximum(res["sigma0_sq"], 1e-12))
+    with np.errstate(invalid="ignore"):
+        return raw <= STIFFER * chain_sigma
+
+
 def verify_against_map(result: LoopAudit) -> None:
     """Run the rounds and fold their outcome into the table's verdicts (module doc)."""
     t = result.table
@@ -105,6 +122,10 @@ def verify_against_map(result: LoopAudit) -> None:
     loops = t["edge"].to_numpy()
     failed = (t["verdict"] == "fail").to_numpy()
     chain_sigma = t["chain_sigma_m"].to_numpy()
+    # a loop its chain refused comes back only against a map that knows more between its poses
+    # than the chain did: the sampled map test is weaker than the chain's chi2 test (heavier
+    # tails), so against a map no stiffer than the chain it would overrule a stronger refusal
+    chain_refused = failed & (t["rule"] == rules.by_statistic("chi2").id).to_numpy()
     in_map = ~failed & (chain_sigma <= fold_m)
     if not in_map.any():
         in_map = ~failed & (t["group_size"].to_numpy() >= 2)
@@ -118,7 +139,8 @@ def verify_against_map(result: LoopAudit) -> None:
         res = map_test(result, P, in_map, seed=rounds)
         # admit a loop only once its test had power: map σ small enough to refute a lie of
         # a few fold_m (5.5 σ at p = 1e-6); a passing loop already in the map stays
-        nxt = (res["p"] >= p_alarm) & (in_map | (res["map_sigma_m"] <= power_m))
+        nxt = (res["p"] >= p_alarm) & (in_map | (res["map_sigma_m"] <= power_m)) \
+            & ~(chain_refused & ~_stiffer(res, chain_sigma))
         if np.array_equal(nxt, in_map) or rounds > int(r3.param("max_rounds")):
             break
         in_map = nxt
@@ -136,11 +158,17 @@ def verify_against_map(result: LoopAudit) -> None:
     rule = t["rule"].to_numpy().astype(object)
     reason = t["reason"].to_numpy().astype(object)
     s0 = float(res["sigma0_sq"][0]) if res["sigma0_sq"].size else 1.0
+    stands = chain_refused & ~_stiffer(res, chain_sigma) if res else chain_refused
     for i in range(len(t)):
         m = (f"against the map of {int(in_map.sum())} verified loops: residual "
              f"{res['residual_m'][i]:.2f} m / {res['residual_deg'][i]:.1f}°, "
              f"χ²={res['T2'][i]:.3g} (σ0²={s0:.3g})")
-        if refuted[i]:
+        if stands[i] and not in_map[i]:
+            raw = res["map_sigma_m"][i] / np.sqrt(max(s0, 1e-12))
+            reason[i] = (f"{reason[i]}; the map between its poses (σ {raw:.2f} m) is no stiffer "
+                         f"than its chain (σ {chain_sigma[i]:.2f} m), so the chain's refusal "
+                         f"stands; {m}")
+        elif refuted[i]:
             if verdict[i] != "fail":
                 verdict[i], rule[i] = r3.severity, r3.id
                 reason[i] = "contradicts the map: " + m
