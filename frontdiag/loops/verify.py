@@ -92,21 +92,13 @@ def map_test(result: LoopAudit, P: F, in_map: NDArray[np.bool_], seed: int = 0) 
             "residual_deg": np.degrees(lie.rotation_angle(R))}
 
 
-# How much more certain than the chain the map must be between a loop's poses before its test
-# may overrule the chain's refusal. At p = 1e-6 the Hotelling test on N_DRAWS = 64 draws needs
-# T² 1.32x (2D) to 1.46x (3D) the chi2 value, so the same lie must sit 1.15-1.21x further out
-# in σ units; the map σ itself is sampled from 64 draws (~9 % error, three of them 1.27x).
-# 1.21 x 1.27 = 1.54: the map must halve the chain's σ.
-STIFFER = 0.5
-
-
-def _stiffer(res: dict[str, F], chain_sigma: F) -> NDArray[np.bool_]:
-    """Whether the map is clearly more certain between a loop's poses than its odometry chain
-    (σ at most ``STIFFER`` x the chain's, both in the file's units, before the variance
-    factor)."""
+def _stiffer(res: dict[str, F], chain_sigma: F, share: float) -> NDArray[np.bool_]:
+    """Whether the map is clearly more certain between a loop's poses than its odometry chain:
+    σ at most ``share`` x the chain's (FD-LOP-003's ``overrule_chain``, whose reason derives
+    it), both in the file's units, before the variance factor."""
     raw = res["map_sigma_m"] / np.sqrt(np.maximum(res["sigma0_sq"], 1e-12))
     with np.errstate(invalid="ignore"):
-        return raw <= STIFFER * chain_sigma
+        return raw <= share * chain_sigma
 
 
 def verify_against_map(result: LoopAudit) -> None:
@@ -119,6 +111,7 @@ def verify_against_map(result: LoopAudit) -> None:
     fold_m = float(r4.param("fold_m"))
     p_alarm = float(r3.param("p_alarm"))
     power_m = float(r3.param("power_m"))
+    overrule = float(r3.param("overrule_chain"))
     loops = t["edge"].to_numpy()
     failed = (t["verdict"] == "fail").to_numpy()
     chain_sigma = t["chain_sigma_m"].to_numpy()
@@ -140,7 +133,7 @@ def verify_against_map(result: LoopAudit) -> None:
         # admit a loop only once its test had power: map σ small enough to refute a lie of
         # a few fold_m (5.5 σ at p = 1e-6); a passing loop already in the map stays
         nxt = (res["p"] >= p_alarm) & (in_map | (res["map_sigma_m"] <= power_m)) \
-            & ~(chain_refused & ~_stiffer(res, chain_sigma))
+            & ~(chain_refused & ~_stiffer(res, chain_sigma, overrule))
         if np.array_equal(nxt, in_map) or rounds > int(r3.param("max_rounds")):
             break
         in_map = nxt
@@ -158,7 +151,7 @@ def verify_against_map(result: LoopAudit) -> None:
     rule = t["rule"].to_numpy().astype(object)
     reason = t["reason"].to_numpy().astype(object)
     s0 = float(res["sigma0_sq"][0]) if res["sigma0_sq"].size else 1.0
-    stands = chain_refused & ~_stiffer(res, chain_sigma) if res else chain_refused
+    stands = chain_refused & ~_stiffer(res, chain_sigma, overrule) if res else chain_refused
     for i in range(len(t)):
         m = (f"against the map of {int(in_map.sum())} verified loops: residual "
              f"{res['residual_m'][i]:.2f} m / {res['residual_deg'][i]:.1f}°, "
