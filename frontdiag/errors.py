@@ -16,6 +16,12 @@ EXIT_INTERNAL = 3
 EXIT_INTERRUPTED = 130
 
 
+def interrupt_on_signal(signum: int, frame: object) -> None:
+    """A signal handler that ends the run the way Ctrl-C does (SIGTERM from a CI timeout or a
+    supervisor): the pass catches the KeyboardInterrupt and keeps the frames analysed so far."""
+    raise KeyboardInterrupt
+
+
 class FrontdiagError(Exception):
     """Root of every error that is the user's input rather than a bug (exit code 2)."""
 

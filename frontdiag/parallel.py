@@ -88,10 +88,9 @@ def interruptible() -> Iterator[None]:
         yield
         return
 
-    def interrupt(signum: int, frame: Any) -> None:
-        raise KeyboardInterrupt
+    from frontdiag.errors import interrupt_on_signal
 
-    old_term = signal.signal(signal.SIGTERM, interrupt)
+    old_term = signal.signal(signal.SIGTERM, interrupt_on_signal)
     signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         yield

@@ -23,6 +23,7 @@ from frontdiag.errors import (
     EXIT_INTERRUPTED,
     EXIT_OK,
     FrontdiagError,
+    interrupt_on_signal,
 )
 
 # typer >= 0.20 vendors click; older releases depend on it.
@@ -165,11 +166,7 @@ def _terminate_as_interrupt() -> Any:
         previous = signal.getsignal(signal.SIGTERM)
         if previous is not signal.SIG_DFL:
             return None
-
-        def interrupt(signum: int, frame: Any) -> None:
-            raise KeyboardInterrupt
-
-        signal.signal(signal.SIGTERM, interrupt)
+        signal.signal(signal.SIGTERM, interrupt_on_signal)
     except (AttributeError, ValueError, OSError):
         return None
     return previous

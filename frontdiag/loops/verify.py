@@ -92,13 +92,18 @@ def map_test(result: LoopAudit, P: F, in_map: NDArray[np.bool_], seed: int = 0) 
             "residual_deg": np.degrees(lie.rotation_angle(R))}
 
 
+def _raw_sigma(res: dict[str, F]) -> F:
+    """The map's σ between each loop's poses in the file's units (before the variance factor),
+    comparable with the chain's σ."""
+    return res["map_sigma_m"] / np.sqrt(np.maximum(res["sigma0_sq"], 1e-12))
+
+
 def _stiffer(res: dict[str, F], chain_sigma: F, share: float) -> NDArray[np.bool_]:
     """Whether the map is clearly more certain between a loop's poses than its odometry chain:
     σ at most ``share`` x the chain's (FD-LOP-003's ``overrule_chain``, whose reason derives
-    it), both in the file's units, before the variance factor."""
-    raw = res["map_sigma_m"] / np.sqrt(np.maximum(res["sigma0_sq"], 1e-12))
+    it)."""
     with np.errstate(invalid="ignore"):
-        return raw <= share * chain_sigma
+        return _raw_sigma(res) <= share * chain_sigma
 
 
 def verify_against_map(result: LoopAudit) -> None:
@@ -151,16 +156,16 @@ def verify_against_map(result: LoopAudit) -> None:
     rule = t["rule"].to_numpy().astype(object)
     reason = t["reason"].to_numpy().astype(object)
     s0 = float(res["sigma0_sq"][0]) if res["sigma0_sq"].size else 1.0
-    stands = chain_refused & ~_stiffer(res, chain_sigma, overrule) if res else chain_refused
+    stands = chain_refused & ~_stiffer(res, chain_sigma, overrule)
+    raw_sigma = _raw_sigma(res)
     for i in range(len(t)):
         m = (f"against the map of {int(in_map.sum())} verified loops: residual "
              f"{res['residual_m'][i]:.2f} m / {res['residual_deg'][i]:.1f}°, "
              f"χ²={res['T2'][i]:.3g} (σ0²={s0:.3g})")
         if stands[i] and not in_map[i]:
-            raw = res["map_sigma_m"][i] / np.sqrt(max(s0, 1e-12))
-            reason[i] = (f"{reason[i]}; the map between its poses (σ {raw:.2f} m) is no stiffer "
-                         f"than its chain (σ {chain_sigma[i]:.2f} m), so the chain's refusal "
-                         f"stands; {m}")
+            reason[i] = (f"{reason[i]}; the map between its poses (σ {raw_sigma[i]:.2f} m) is "
+                         f"no stiffer than its chain (σ {chain_sigma[i]:.2f} m), so the chain's "
+                         f"refusal stands; {m}")
         elif refuted[i]:
             if verdict[i] != "fail":
                 verdict[i], rule[i] = r3.severity, r3.id
