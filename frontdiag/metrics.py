@@ -62,7 +62,8 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
        "higher"),
     _M("entropy_inliers_norm", "ratio", "camera",
        "entropy_norm of the essential-matrix inliers in this frame: where the constraints on the "
-       "pose come from (spread weak keypoints that never match do not constrain it)", "higher"),
+       "pose come from (spread weak keypoints that never match do not constrain it); NaN under 30 "
+       "inliers, where even a uniform spread reads below 0.6 by sampling alone", "higher"),
     _M("occupied_cells", "count", "camera", "cells of the 8x6 grid holding at least one keypoint", "higher"),
     _M("n_weak_keypoints", "count", "camera",
        "keypoints from the low-threshold FAST retry (t=7) in cells empty at t=20; many = low contrast"),

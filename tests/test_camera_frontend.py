@@ -13,7 +13,7 @@ import pytest
 
 from frontdiag import metrics
 from frontdiag.camera import synthetic as S
-from frontdiag.camera.features import OrbExtractor
+from frontdiag.camera.features import MIN_ENTROPY_POINTS, OrbExtractor
 from frontdiag.camera.frontend import CameraFrontend, CameraParams
 from frontdiag.camera.matching import hamming_matrix, match
 from frontdiag.records import CameraFrame, Intrinsics
@@ -232,3 +232,26 @@ def test_enough_parallax_needs_no_second_read() -> None:
     rows = run(walk(8, step_deg=0.3, step_m=0.08))
     wide = [r for r in rows[1:] if r["parallax_med_px"] >= 4.9]
     assert wide and all(r["ref2_frame"] == -1 for r in wide)
+
+
+def _patches_of(img: np.ndarray, side: int, seed: int) -> np.ndarray:
+    """``img`` kept in 48 square patches spread over the view, unrelated texture elsewhere."""
+    h, w = img.shape
+    mask = np.zeros_like(img, bool)
+    for x in np.linspace(40, w - 60, 8).astype(int):
+        for y in np.linspace(30, h - 50, 6).astype(int):
+            mask[y:y + side, x:x + side] = True
+    other = cv2.GaussianBlur(np.random.default_rng(seed).integers(0, 255, img.shape)
+                             .astype(np.uint8), (5, 5), 0)
+    return np.where(mask, img, other).astype(np.uint8)
+
+
+def test_inlier_entropy_needs_enough_inliers() -> None:
+    """Few inliers spread over the whole view would read as clustered by sampling alone."""
+    g = walk(2)
+    few = run([g[0], _patches_of(g[1], 32, 0)])[1]
+    assert 0 < few["inliers_e"] < MIN_ENTROPY_POINTS
+    assert math.isnan(few["entropy_inliers_norm"])
+    many = run([g[0], _patches_of(g[1], 48, 0)])[1]
+    assert many["inliers_e"] >= MIN_ENTROPY_POINTS
+    assert many["entropy_inliers_norm"] > 0.6  # spread, so above the clustering alarm

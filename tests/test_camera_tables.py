@@ -8,7 +8,12 @@ import math
 import numpy as np
 import pytest
 
-from frontdiag.camera.features import entropy_from_counts, level_budgets, spatial_entropy
+from frontdiag.camera.features import (
+    MIN_ENTROPY_POINTS,
+    entropy_from_counts,
+    level_budgets,
+    spatial_entropy,
+)
 from frontdiag.camera.geometry import (
     epipolar_threshold_px,
     homography_threshold_px,
@@ -40,6 +45,22 @@ def test_spatial_entropy_bins_points_on_the_8x6_grid() -> None:
     assert occupied == 4
     ent, occupied = spatial_entropy(np.zeros((0, 2), np.float32), w, h)
     assert math.isnan(ent) and occupied == 0
+
+
+def _uniform_entropies(n: int, draws: int = 2000) -> np.ndarray:
+    rng = np.random.default_rng(7)
+    w, h = 1280, 720
+    return np.array([spatial_entropy(rng.uniform((0, 0), (w, h), (n, 2)), w, h)[0]
+                     for _ in range(draws)])
+
+
+def test_entropy_needs_enough_points_to_read_spread() -> None:
+    """The inlier entropy's floor: a uniform spread of fewer points reads as clustered."""
+    alarm = 0.6  # FD-CLU-001's entropy_alarm
+    assert _uniform_entropies(10).mean() < alarm  # 10 spread inliers would raise the alarm
+    at_floor = _uniform_entropies(MIN_ENTROPY_POINTS)
+    assert np.percentile(at_floor, 1) > alarm + 0.1
+    assert _uniform_entropies(MIN_ENTROPY_POINTS - 10).mean() < 0.74  # under "acceptable"
 
 
 @pytest.mark.parametrize(("s", "w", "p", "n"), [

@@ -42,6 +42,7 @@ import cv2
 import numpy as np
 
 from frontdiag.camera.features import (
+    MIN_ENTROPY_POINTS,
     Features,
     OrbExtractor,
     entropy_from_counts,
@@ -276,7 +277,7 @@ class CameraFrontend:
                       confidence=p.ransac_confidence, max_iters=p.ransac_max_iters, seed=p.seed)
         self._note_correspondences(cur, kf, sel, tv.inlier_mask)
         row.update(inliers_h=tv.inliers_h)
-        if tv.inlier_mask is not None and tv.inlier_mask.any():
+        if tv.inlier_mask is not None and np.count_nonzero(tv.inlier_mask) >= MIN_ENTROPY_POINTS:
             h, w = cur.gray.shape[:2]
             row["entropy_inliers_norm"] = spatial_entropy(cur.feats.xy[sel[tv.inlier_mask]],
                                                           w, h)[0]
