@@ -15,6 +15,7 @@ import copy
 import logging
 from collections import deque
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -240,6 +241,38 @@ def prime_converter(rec: Recording, topic: str, conv: GrayConverter, opts: Any) 
         return
 
 
+@contextmanager
+def frame_boundary_interrupts() -> Iterator[Callable[[], bool]]:
+    """Ctrl-C (or SIGTERM where it is handled like Ctrl-C) during the block is held until the
+    pass asks, between two messages: a frame is analysed, its readings completed and its row
+    kept, or none of that. An interrupt landing inside a frame would otherwise leave the
+    frontend one frame ahead of the rows (the open interval then closes over a frame that is
+    not in the table). A second Ctrl-C stops at once. Outside the main thread (a Dask worker's
+    task) signals are not this thread's, and nothing changes."""
+    import signal
+    import threading
+
+    from frontdiag.errors import interrupt_on_signal
+
+    asked = [False]
+
+    def hold(signum: int, frame: object) -> None:
+        if asked[0]:
+            raise KeyboardInterrupt
+        asked[0] = True
+
+    saved: dict[signal.Signals, Any] = {}
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            if signal.getsignal(sig) in (signal.default_int_handler, interrupt_on_signal):
+                saved[sig] = signal.signal(sig, hold)
+    try:
+        yield lambda: asked[0]
+    finally:
+        for sig, handler in saved.items():
+            signal.signal(sig, handler)
+
+
 def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics | None, *,
                progress: ProgressFn | None = None, expected: int | None = None,
                frames: FrameWindow | None = None, resume: Any = None,
@@ -307,80 +340,85 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
             pending.popleft()
             rows.append(lid_stream.analyse(scan, lid_front, "lidar", rec_start))
 
-    try:
-        for raw in rec.messages(read_topics, None, e):
-            if raw.topic == choice.odometry and lid_front is not None:
-                try:
-                    msg = rec.deserialize(raw)
-                    lid_front.add_odometry(header_stamp_ns(msg), odometry_pose(msg))
-                except Exception as exc:
-                    log.debug("odometry message skipped: %s", exc)
-                release(raw.log_ns)
-                continue
-            if raw.topic == choice.camera and cam_stream and cam_front and conv:
-                if cam_stream.full and (lid_stream is None or lid_stream.full):
-                    break
-                if cam_stream.past_end() and not cam_stream.draining:
-                    if want_end_state:
-                        out.end_state = camera_state(cam_front, cam_stream)
-                    cam_stream.draining = True
-                if cam_stream.draining and not cam_front.pending:
-                    break
-                if not cam_stream.admit(raw.log_ns):
-                    continue
-                frame = decode_camera(rec, raw, cam_stream, conv)
-                if frame is None:
-                    check_all_failed(cam_stream)
-                    continue
-                row = cam_stream.analyse(frame, cam_front, "camera", rec_start)
-                complete()
-                if cam_stream.owned:
-                    rows.append(row)
-                    by_frame[frame.index] = row
-                if cam_stream.draining:
-                    continue
-                if record_keys or until is not None:
-                    key = camera_key(cam_front, cam_stream)
-                    if record_keys:
-                        out.keys[frame.index] = key
-                    if until is not None and until(frame.index, key):
-                        # rows already made may wait for the interval to close: drain
-                        out.stopped_at = frame.index
-                        cam_stream.draining = True
-                if not cam_stream.owned:
-                    continue
-            elif raw.topic == choice.lidar and lid_stream and lid_front:
-                if lid_stream.full and (cam_stream is None or cam_stream.full):
-                    break
-                if not lid_stream.admit(raw.log_ns):
-                    continue
-                if opts.max_frames and lid_stream.stats.analysed + len(pending) >= opts.max_frames:
-                    continue
-                scan = decode_lidar(rec, raw, lid_stream)
-                if scan is None:
-                    check_all_failed(lid_stream)
-                    continue
-                if choice.odometry:
-                    pending.append(scan)
+    with frame_boundary_interrupts() as stop_asked:
+        try:
+            for raw in rec.messages(read_topics, None, e):
+                if stop_asked():
+                    raise KeyboardInterrupt
+                if raw.topic == choice.odometry and lid_front is not None:
+                    try:
+                        msg = rec.deserialize(raw)
+                        lid_front.add_odometry(header_stamp_ns(msg), odometry_pose(msg))
+                    except Exception as exc:
+                        log.debug("odometry message skipped: %s", exc)
                     release(raw.log_ns)
+                    continue
+                if raw.topic == choice.camera and cam_stream and cam_front and conv:
+                    if cam_stream.full and (lid_stream is None or lid_stream.full):
+                        break
+                    if cam_stream.past_end() and not cam_stream.draining:
+                        if want_end_state:
+                            out.end_state = camera_state(cam_front, cam_stream)
+                        cam_stream.draining = True
+                    if cam_stream.draining and not cam_front.pending:
+                        break
+                    if not cam_stream.admit(raw.log_ns):
+                        continue
+                    frame = decode_camera(rec, raw, cam_stream, conv)
+                    if frame is None:
+                        check_all_failed(cam_stream)
+                        continue
+                    row = cam_stream.analyse(frame, cam_front, "camera", rec_start)
+                    complete()
+                    if cam_stream.owned:
+                        rows.append(row)
+                        by_frame[frame.index] = row
+                    if cam_stream.draining:
+                        continue
+                    if record_keys or until is not None:
+                        key = camera_key(cam_front, cam_stream)
+                        if record_keys:
+                            out.keys[frame.index] = key
+                        if until is not None and until(frame.index, key):
+                            # rows already made may wait for the interval to close: drain
+                            out.stopped_at = frame.index
+                            cam_stream.draining = True
+                    if not cam_stream.owned:
+                        continue
+                elif raw.topic == choice.lidar and lid_stream and lid_front:
+                    if lid_stream.full and (cam_stream is None or cam_stream.full):
+                        break
+                    if not lid_stream.admit(raw.log_ns):
+                        continue
+                    if opts.max_frames and lid_stream.stats.analysed + len(pending) >= opts.max_frames:
+                        continue
+                    scan = decode_lidar(rec, raw, lid_stream)
+                    if scan is None:
+                        check_all_failed(lid_stream)
+                        continue
+                    if choice.odometry:
+                        pending.append(scan)
+                        release(raw.log_ns)
+                    else:
+                        rows.append(lid_stream.analyse(scan, lid_front, "lidar", rec_start))
                 else:
-                    rows.append(lid_stream.analyse(scan, lid_front, "lidar", rec_start))
-            else:
-                continue
-            done += 1
-            if progress:
-                progress(done, expected or None)
-    except KeyboardInterrupt:
-        out.interrupted = True
-    except FrontdiagError as exc:
-        out.fault = exc
-    if not out.interrupted:
-        release(None)  # the scans still waiting for odometry that will not come
-    if cam_front is not None and cam_stream is not None:
-        if want_end_state and out.end_state is None:
-            out.end_state = camera_state(cam_front, cam_stream)
-        cam_front.finish()  # the end of the frames read closes the open interval
-        complete()
+                    continue
+                done += 1
+                if progress:
+                    progress(done, expected or None)
+        except KeyboardInterrupt:
+            out.interrupted = True
+        except FrontdiagError as exc:
+            out.fault = exc
+        if stop_asked():  # asked during the last frame or the drain: still an interruption
+            out.interrupted = True
+        if not out.interrupted:
+            release(None)  # the scans still waiting for odometry that will not come
+        if cam_front is not None and cam_stream is not None:
+            if want_end_state and out.end_state is None:
+                out.end_state = camera_state(cam_front, cam_stream)
+            cam_front.finish()  # the end of the frames read closes the open interval
+            complete()
     return out
 
 

@@ -111,3 +111,45 @@ def test_interrupted_windows_keep_the_frames_before_the_interruption(
     serial = run_analysis(path, AnalysisOptions())
     assert serial.interrupted == (kept < 150)
     _same_table(serial.table, par.table)
+
+
+def test_a_signal_inside_a_frame_stops_at_the_frame_boundary(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Ctrl-C landing in the middle of frame 40 ends the pass after that frame, with the table
+    of a pass that read 41 frames: the frontend is never a frame ahead of the rows."""
+    import os
+    import signal
+
+    from frontdiag.camera import frontend
+
+    path = write_recording(tmp_path / "run.mcap", "mcap", n=80, shift=1)
+    real = frontend.CameraFrontend.process
+
+    def process(self, frame):  # type: ignore[no-untyped-def]
+        if frame.index == 40:
+            os.kill(os.getpid(), signal.SIGINT)  # delivered here, half-way through the frame
+        return real(self, frame)
+
+    with monkeypatch.context() as m:
+        m.setattr(frontend.CameraFrontend, "process", process)
+        stopped = run_analysis(path, AnalysisOptions())
+    assert stopped.interrupted
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored
+    short = run_analysis(path, AnalysisOptions(max_frames=41))
+    assert list(stopped.table["frame"]) == list(range(41))
+    _same_table(short.table, stopped.table)
+
+
+def test_a_second_signal_stops_at_once() -> None:
+    import os
+    import signal
+
+    from frontdiag.runner import frame_boundary_interrupts
+
+    with frame_boundary_interrupts() as asked:
+        assert not asked()
+        os.kill(os.getpid(), signal.SIGINT)
+        assert asked()  # held, not raised
+        with pytest.raises(KeyboardInterrupt):
+            os.kill(os.getpid(), signal.SIGINT)
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
