@@ -179,6 +179,10 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
     check_selection(opts)
     if opts.jobs < 1:
         raise ConfigError(f"--jobs {opts.jobs}: must be >= 1")
+    if opts.jobs > 1:
+        from frontdiag.parallel import prestart
+
+        prestart()
     path = Path(path)
     t_start = time.perf_counter()
     ruleset = None

@@ -67,6 +67,19 @@ def _context() -> Any:
     return ctx
 
 
+def prestart() -> None:
+    """Start the worker server now, so that its imports (OpenCV, NumPy, the frontend: about
+    0.6 s) run while the caller loads the rules and scans the recording, instead of delaying
+    the first window. The pool created later forks its workers from it."""
+    from multiprocessing import forkserver
+
+    try:
+        _context()  # the preload list must be set before the server starts
+        forkserver.ensure_running()
+    except (OSError, ValueError) as exc:  # the pool will try again and report it
+        log.debug("worker server not started early: %s", exc)
+
+
 def worker_init() -> None:
     """Pool workers ignore Ctrl-C while they wait for a task (an idle worker has nothing to
     keep and would only print a traceback); :func:`interruptible` re-arms it for a task."""
