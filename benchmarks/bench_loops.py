@@ -32,6 +32,7 @@ import numpy as np
 
 from frontdiag.loops import audit, read_graph
 from frontdiag.loops.chain import build_chain
+from frontdiag.loops.init import chordal_init
 from frontdiag.loops.inject import KINDS, inject_false_loops
 from frontdiag.loops.optimize import ate, gtsam_problem
 from frontdiag.loops.solve import solve
@@ -83,13 +84,20 @@ def main() -> int:
             continue
         clean = read_graph(path, sqrt_info=entry["sqrt_info"])
         odo = clean.odometry_mask()
-        init = build_chain(clean, odo).P
-        P_ref, _ = solve(clean, np.ones(clean.n_edges, bool), init)
+        chain_P = build_chain(clean, odo).P
+
+        def start(graph, edges, chain_P=chain_P):  # type: ignore[no-untyped-def]
+            # every solve from the chordal start of its own edges, as the audit's maps:
+            # from the odometry chain LM stops in a local minimum on intel (6.9 m ATE away)
+            return chordal_init(graph, edges, chain_P)
+
+        every = np.ones(clean.n_edges, bool)
+        P_ref, _ = solve(clean, every, start(clean, every))
         rng = np.random.default_rng(args.seed)
         drop = np.ones(clean.n_edges, bool)
         true_loops = np.flatnonzero(~odo)
         drop[rng.choice(true_loops, max(1, int(0.02 * true_loops.size)), replace=False)] = False
-        P_drop, _ = solve(clean, drop, init)
+        P_drop, _ = solve(clean, drop, start(clean, drop))
         fold_at = 1.5 * ate(P_drop, P_ref)
         first = True
         for kind in kinds:
@@ -103,8 +111,9 @@ def main() -> int:
                 refused = (t["verdict"] != "ok").to_numpy()
                 recall = float(refused[fl].mean()) if fl.any() else float("nan")
                 retain = float((~refused[~fl]).mean())
-                P_kept, _ = solve(g, res.kept_edges(), init)
-                P_all, _ = solve(g, np.ones(g.n_edges, bool), init)
+                kept, every_g = res.kept_edges(), np.ones(g.n_edges, bool)
+                P_kept, _ = solve(g, kept, start(g, kept))
+                P_all, _ = solve(g, every_g, start(g, every_g))
                 a_kept, a_all = ate(P_kept, P_ref), ate(P_all, P_ref)
                 row = {"graph": entry["name"], "kind": kind, "fraction": frac,
                        "n_false": int(fl.sum()), "recall": recall, "retention": retain,
@@ -113,7 +122,10 @@ def main() -> int:
                 gs = grec = gret = ratio = float("nan")
                 if args.gnc == "all" or (args.gnc == "first" and first):
                     try:
-                        gs, inl = gnc(g, g.odometry_mask(), init)
+                        # GNC from the odometry chain, its usual start: from the chordal
+                        # start of every edge (false loops included) it kept 0.82 of M3500's
+                        # true loops in 135 s instead of 0.98 in 25-33 s
+                        gs, inl = gnc(g, g.odometry_mask(), chain_P)
                         lf = false & ~g.odometry_mask()
                         lt = ~false & ~g.odometry_mask()
                         grec, gret = float((~inl[lf]).mean()), float(inl[lt].mean())

@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 
 from frontdiag.loops import lie
 from frontdiag.loops.graph import PoseGraph
+from frontdiag.loops.init import chordal_init
 from frontdiag.loops.solve import solve
 
 if TYPE_CHECKING:
@@ -115,11 +116,12 @@ def compare_solutions(result: LoopAudit) -> dict[str, Any]:
     before / after and the ATE between the two maps."""
     g = result.graph
     t = result.table
-    init = result.chain.P
     every = np.ones(g.n_edges, bool)
     kept = result.kept_edges()
-    P_all = optimise(g, every, init)
-    P_clean = optimise(g, kept, init)
+    # each solve from the chordal start of its own edges (frontdiag/loops/init.py): from the
+    # odometry chain, LM can stop in a local minimum metres from the optimum
+    P_all = optimise(g, every, chordal_init(g, every, result.chain.P))
+    P_clean = optimise(g, kept, chordal_init(g, kept, result.chain.P))
     flagged = t[t["verdict"] == "fail"].sort_values("displacement_m", ascending=False,
                                                     na_position="last")
     e = flagged["edge"].to_numpy()

@@ -35,6 +35,7 @@ from scipy.stats import chi2 as chi2_dist
 from scipy.stats import f as f_dist
 
 from frontdiag.loops import lie
+from frontdiag.loops.init import chordal_init
 from frontdiag.loops.solve import Factor, _chol_upper, linearise, normal_equations, solve
 
 if TYPE_CHECKING:
@@ -44,6 +45,7 @@ log = logging.getLogger(__name__)
 
 F = NDArray[np.float64]
 N_DRAWS = 64
+MIN_VARIANCE_LOOPS = 10  # loops in the map below which the variance factor is not estimated
 
 
 def map_test(result: LoopAudit, P: F, in_map: NDArray[np.bool_], seed: int = 0) -> dict[str, F]:
@@ -79,7 +81,7 @@ def map_test(result: LoopAudit, P: F, in_map: NDArray[np.bool_], seed: int = 0) 
     T2 = np.einsum("mi,mij,mj->m", e, np.linalg.inv(S), e)
     ref = float(chi2_dist.ppf(0.5, k))
     mine = T2[in_map]
-    sigma0_sq = float(np.median(mine) / ref) if mine.size >= 10 else 1.0
+    sigma0_sq = float(np.median(mine) / ref) if mine.size >= MIN_VARIANCE_LOOPS else 1.0
     sigma0_sq = max(sigma0_sq, 1e-12)
     T2s = T2 / sigma0_sq
     Fstat = T2s * (N_DRAWS - k + 1) / (N_DRAWS * k)
@@ -125,7 +127,10 @@ def verify_against_map(result: LoopAudit) -> None:
     # tails), so against a map no stiffer than the chain it would overrule a stronger refusal
     chain_refused = failed & (t["rule"] == rules.by_statistic("chi2").id).to_numpy()
     in_map = ~failed & (chain_sigma <= fold_m)
-    if not in_map.any():
+    if in_map.sum() < MIN_VARIANCE_LOOPS:
+        # too few chain-confirmed loops to estimate the variance factor (the first map would
+        # be the odometry and a loop or two, on the file's covariances): seed with the loops
+        # the pair test grouped instead
         in_map = ~failed & (t["group_size"].to_numpy() >= 2)
     P = result.chain.P.copy()
     res: dict[str, F] = {}
@@ -133,6 +138,8 @@ def verify_against_map(result: LoopAudit) -> None:
     for rounds in range(1, int(r3.param("max_rounds")) + 2):
         edges = result.odometry.copy()
         edges[loops[in_map]] = True
+        if rounds == 1:  # later rounds start from the map before them
+            P = chordal_init(g, edges, P)
         P, _ = solve(g, edges, P, tol=1e-6)
         res = map_test(result, P, in_map, seed=rounds)
         # admit a loop only once its test had power: map σ small enough to refute a lie of
