@@ -24,7 +24,7 @@ from numpy.typing import NDArray
 from scipy.sparse.csgraph import connected_components
 
 from frontdiag.loops.graph import PoseGraph
-from frontdiag.loops.solve import Factor
+from frontdiag.loops.solve import Factor, block_matrix
 
 F = NDArray[np.float64]
 _ANCHOR = 1e8  # the anchors' prior, relative to the stiffest edge
@@ -35,26 +35,11 @@ def _normal_matrix(n: int, d: int, src: NDArray[np.int64], dst: NDArray[np.int64
     """Σ_e w_e [−M_e, I]ᵀ[−M_e, I] over (i, j) blocks, for residuals x_j − M_e x_i with M_e
     orthogonal (so the (i, i) block is w·I), plus a stiff prior on the anchors."""
     eye = np.eye(d)
-    ar = np.arange(d)
-    rows_b = np.repeat(ar, d).reshape(d, d)
-    cols_b = rows_b.T
-
-    def blocks(bi: NDArray[np.int64], bj: NDArray[np.int64],
-               vals: F) -> tuple[NDArray[np.int64], NDArray[np.int64], F]:
-        return ((bi[:, None, None] * d + rows_b[None]).ravel(),
-                (bj[:, None, None] * d + cols_b[None]).ravel(), vals.ravel())
-
     diag = np.zeros((n, d, d))
     np.add.at(diag, src, w[:, None, None] * eye)
     np.add.at(diag, dst, w[:, None, None] * eye)
     diag[anchors] += prior * eye
-    ij = -w[:, None, None] * np.swapaxes(off, -1, -2)  # block (i, j) = −w M_eᵀ
-    ver = np.arange(n)
-    parts = [blocks(ver, ver, diag), blocks(src, dst, ij), blocks(dst, src, np.swapaxes(ij, -1, -2))]
-    rr = np.concatenate([p[0] for p in parts])
-    cc = np.concatenate([p[1] for p in parts])
-    vv = np.concatenate([p[2] for p in parts])
-    return sp.coo_matrix((vv, (rr, cc)), shape=(n * d, n * d)).tocsc()
+    return block_matrix(diag, src, dst, -w[:, None, None] * np.swapaxes(off, -1, -2))
 
 
 def chordal_init(graph: PoseGraph, edges: NDArray[np.bool_], fallback: F) -> F:

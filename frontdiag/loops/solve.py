@@ -80,23 +80,31 @@ def normal_equations(lin: Linearised, src: NDArray[np.int64], dst: NDArray[np.in
     # damping and a relative regulariser per entry (a mean would mix metres and radians)
     diag[:, idx, idx] += (damping + 1e-12) * dvals + 1e-12
     diag[0, idx, idx] += GAUGE_INFO
+    return block_matrix(diag, src, dst, Hij), g.ravel()
+
+
+def block_matrix(diag: F, src: NDArray[np.int64], dst: NDArray[np.int64],
+                 off: F) -> sp.csc_matrix:
+    """The symmetric sparse matrix with k x k blocks ``diag[v]`` on the diagonal and ``off[e]``
+    at (src[e], dst[e]) (its transpose at (dst[e], src[e])); duplicates are summed."""
+    n, k = diag.shape[0], diag.shape[-1]
     ar = np.arange(k)
     rows_b = ar[:, None] * np.ones(k, dtype=np.int64)[None, :]
     cols_b = rows_b.T
 
-    def blocks(bi: NDArray[np.int64], bj: NDArray[np.int64], vals: F) -> tuple[F, F, F]:
+    def blocks(bi: NDArray[np.int64], bj: NDArray[np.int64],
+               vals: F) -> tuple[NDArray[np.int64], NDArray[np.int64], F]:
         rr = (bi[:, None, None] * k + rows_b[None]).ravel()
         cc = (bj[:, None, None] * k + cols_b[None]).ravel()
         return rr, cc, vals.ravel()
 
     ver = np.arange(n)
-    parts = [blocks(ver, ver, diag), blocks(src, dst, Hij),
-             blocks(dst, src, np.swapaxes(Hij, -1, -2))]
+    parts = [blocks(ver, ver, diag), blocks(src, dst, off),
+             blocks(dst, src, np.swapaxes(off, -1, -2))]
     rr = np.concatenate([p[0] for p in parts])
     cc = np.concatenate([p[1] for p in parts])
     vv = np.concatenate([p[2] for p in parts])
-    H = sp.coo_matrix((vv, (rr, cc)), shape=(n * k, n * k)).tocsc()
-    return H, g.ravel()
+    return sp.coo_matrix((vv, (rr, cc)), shape=(n * k, n * k)).tocsc()
 
 
 class Factor:
