@@ -246,19 +246,29 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
 
 
 def _read_intervals_for(ruleset: Any, opts: AnalysisOptions) -> AnalysisOptions:
-    """The camera frontend takes its two-interval reading on intervals shorter than
-    ``two_interval_px``; rules that read intervals up to a larger ``min_parallax_px`` raise it."""
+    """The camera frontend's readings for the H/E quadrant rules, set from those rules.
+
+    It takes its two-interval reading on intervals shorter than ``two_interval_px``; rules that
+    read intervals up to a larger ``min_parallax_px`` raise it. It takes the rotation-only fit
+    where H/E is above ``rot_fit_he`` with parallax at least ``rot_fit_parallax_deg``; rules
+    with a ``rot_fit_px`` and a lower ``he_degenerate`` or ``parallax_split_deg`` lower them.
+    """
     from dataclasses import replace
 
     from frontdiag.camera.frontend import CameraParams
 
     cp = opts.camera_params or CameraParams()
-    need = max((float(r.param("min_parallax_px")) for r in ruleset.frame_rules
-                if r.check == "he_parallax_quadrant" and "min_parallax_px" in r.params),
-               default=0.0)
-    if need <= cp.two_interval_px:
-        return opts
-    return replace(opts, camera_params=replace(cp, two_interval_px=need))
+    quadrant = [r for r in ruleset.frame_rules if r.check == "he_parallax_quadrant"]
+    need = max((float(r.param("min_parallax_px")) for r in quadrant
+                if "min_parallax_px" in r.params), default=0.0)
+    rot = [r for r in quadrant if "rot_fit_px" in r.params]
+    he = min((float(r.param("he_degenerate")) for r in rot), default=cp.rot_fit_he)
+    par = min((float(r.param("parallax_split_deg")) for r in rot),
+              default=cp.rot_fit_parallax_deg)
+    new = replace(cp, two_interval_px=max(need, cp.two_interval_px),
+                  rot_fit_he=min(he, cp.rot_fit_he),
+                  rot_fit_parallax_deg=min(par, cp.rot_fit_parallax_deg))
+    return opts if new == cp else replace(opts, camera_params=new)
 
 
 def _stream_notes(path: Path, rec: Recording, run: StreamRun,

@@ -53,6 +53,11 @@ class CameraConfig(_Strict):
     two_interval_px: float = Field(default=4.9, ge=0.0, le=1000.0,
                                    description="read H/E two keyframes back when an interval "
                                                "spans fewer pixels of parallax than this")
+    rot_fit_he: float = Field(default=0.9, ge=0.0, le=1.0,
+                              description="take the rotation-only fit where H/E is above this "
+                                          "(lowered to the rules' he_degenerate)")
+    rot_fit_parallax_deg: float = Field(default=0.3, ge=0.0, le=90.0,
+                                        description="... with at least this parallax (deg)")
     seed: int = Field(default=0, ge=0, description="RANSAC seed")
 
     @model_validator(mode="after")

@@ -111,7 +111,9 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
     _M("rot_only_px", "px", "camera",
        "median transfer error of the best rotation-only model x' ~ K R K^-1 x over the essential "
        "inliers, the focal allowed 0.5-2x the given one: near the localisation noise when the "
-       "camera only turned (or stood still), whatever the accuracy of K", "none"),
+       "camera only turned (or stood still), whatever the accuracy of K; read only where H/E "
+       "is above 0.9 with parallax >= 0.3 deg (on the frame or its interval), the only "
+       "readings it can change", "none"),
     _M("rot_focal_scale", "ratio", "camera",
        "focal length, as a multiple of the given one, at which rot_only_px is smallest"),
     _M("ref2_frame", "", "camera",

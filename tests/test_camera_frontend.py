@@ -234,6 +234,37 @@ def test_enough_parallax_needs_no_second_read() -> None:
     assert wide and all(r["ref2_frame"] == -1 for r in wide)
 
 
+def _wall_walk(n: int) -> list[np.ndarray]:
+    """A camera translating sideways and forward in front of a textured wall (a plane)."""
+    planes = S.wall(seed=3, z=4.0)
+    return [S.render(planes, K, np.eye(3), -np.array([0.03 * k, 0, 0.02 * k]), SIZE)
+            for k in range(n)]
+
+
+def test_the_rotation_fit_is_taken_where_it_can_change_the_quadrant() -> None:
+    # a wall under translation reads the planar quadrant (H/E > 0.9, parallax >= 0.3 deg): the
+    # rotation-only fit is taken there, and a translation leaves a residual no rotation removes
+    planar = run_completed(CameraFrontend(CameraParams(), Intrinsics(K=K)), _wall_walk(12))
+    read = [r for r in planar[1:] if r["h_over_e"] > 0.9 and r["parallax_med_deg"] >= 0.3]
+    assert len(read) >= 5, [(r["h_over_e"], r["parallax_med_deg"]) for r in planar]
+    assert all(r["rot_only_px"] > 2.45 for r in read), [r["rot_only_px"] for r in read]
+    # a walk through a 3D room reads H/E low: no fit can move it into a quadrant a rule wants
+    room_rows = run_completed(CameraFrontend(CameraParams(), Intrinsics(K=K)),
+                              walk(10, step_deg=0.3, step_m=0.08))
+    assert all(r["h_over_e"] < 0.9 for r in room_rows[2:]), [r["h_over_e"] for r in room_rows]
+    assert all(np.isnan(r["rot_only_px"]) for r in room_rows)
+    # taken on every frame (both lines at 0), the same frames get the same values
+    every = run_completed(CameraFrontend(CameraParams(rot_fit_he=0.0, rot_fit_parallax_deg=0.0),
+                                         Intrinsics(K=K)), walk(10, step_deg=0.3, step_m=0.08))
+    assert sum(r["rot_only_px"] == r["rot_only_px"] for r in every) >= 8
+    for a, b in zip(planar, run_completed(
+            CameraFrontend(CameraParams(rot_fit_he=0.0, rot_fit_parallax_deg=0.0),
+                           Intrinsics(K=K)), _wall_walk(12)), strict=True):
+        if a["rot_only_px"] == a["rot_only_px"]:
+            assert (a["rot_only_px"], a["rot_focal_scale"]) == (b["rot_only_px"],
+                                                                b["rot_focal_scale"])
+
+
 def _patches_of(img: np.ndarray, side: int, seed: int) -> np.ndarray:
     """``img`` kept in 48 square patches spread over the view, unrelated texture elsewhere."""
     h, w = img.shape

@@ -29,6 +29,15 @@ under 4.9 px of an interval whose own reading — the median image parallax over
 parallax, as FD-PLN-001 reads it — stays under ``two_interval_px`` are read then, and the rows
 get them through :meth:`take_updates`; the frames of longer intervals are not read (their
 ``*_2kf`` columns stay empty: the H/E reading of their own interval holds).
+
+The rotation-only fit (``rot_only_px``, ``rot_focal_scale``) is frontdiag's too, and is only
+needed where it can move a frame from the planar quadrant to the rotation quadrant: where H/E is
+above ``rot_fit_he`` with parallax at least ``rot_fit_parallax_deg``, read on the frame itself or
+over its interval (the medians over the interval's upper half by parallax, where FD-PLN-001 and
+FD-ROT-001 take the reading). So it is also taken when the interval closes, on the frames of its
+upper half when the interval's reading is in that quadrant and on any frame whose own reading
+is; elsewhere the columns stay empty, since a rotation fit cannot change a quadrant whose H/E is
+low or whose parallax is already under the split.
 """
 
 from __future__ import annotations
@@ -97,6 +106,8 @@ class CameraParams:
     kf_parallax_deg: float = 2.29
     relink_tracks: bool = True
     two_interval_px: float = 4.9  # read intervals shorter than this two keyframes back
+    rot_fit_he: float = 0.9  # rotation-only fit where H/E is above this (module docstring)
+    rot_fit_parallax_deg: float = 0.3  # ... with at least this much parallax
     seed: int = 0
 
     def as_dict(self) -> dict[str, Any]:
@@ -123,10 +134,15 @@ class _Keyframe:
     last_t: np.ndarray | None = None
     parent: _View | None = None  # the keyframe before this one, when tracks link the two
     parent_idx: np.ndarray | None = None  # per feature of ``view``: its track in ``parent``, or -1
-    reads: list[tuple[float, float]] = field(default_factory=list)  # (parallax deg, px) per row
+    reads: list[tuple[float, float, float]] = field(default_factory=list)
+    """(parallax deg, parallax px, H/E) per row with both readings."""
     pending: list[tuple[int, np.ndarray, np.ndarray]] = field(default_factory=list)
     """Two-interval readings to take if the interval turns out short: (frame, parent points,
     current points)."""
+    rot_pending: list[tuple[int, float, float, np.ndarray, np.ndarray]] = field(
+        default_factory=list)
+    """Rotation-only fits to take if the frame or its interval reads H/E high with parallax:
+    (frame, H/E, parallax deg, reference inliers, current inliers)."""
 
 
 def _row_template() -> dict[str, Any]:
@@ -171,7 +187,6 @@ class CameraFrontend:
         self._flow: tuple[int, np.ndarray, np.ndarray] | None = None
         self.last_annotation: CameraAnnotation | None = None
         """What the last ``process`` call computed, for drawing (see CameraAnnotation)."""
-        self._rot_pts: tuple[np.ndarray, np.ndarray] | None = None
 
     def reset(self) -> None:
         self._close_interval()
@@ -190,7 +205,7 @@ class CameraFrontend:
     @property
     def pending(self) -> bool:
         """Whether rows already returned may still be completed by later frames."""
-        return bool(self._kf is not None and self._kf.pending)
+        return bool(self._kf is not None and (self._kf.pending or self._kf.rot_pending))
 
     # ------------------------------------------------------------------ state (for windows)
     def state_key(self) -> tuple[int, int] | None:
@@ -291,12 +306,14 @@ class CameraFrontend:
                                                                p.ransac_confidence),
                    ransac_iters_run=ransac_iters_run(tv.inlier_ratio, p.ransac_max_iters,
                                                      E_SAMPLE, p.ransac_confidence))
-        if tv.inlier_mask is not None and tv.ok_e:
-            self._rot_pts = (p_ref[tv.inlier_mask], p_cur[tv.inlier_mask])
         if tv.parallax_med_deg == tv.parallax_med_deg:
             row["parallax_med_px"] = self._deg_to_px(tv.parallax_med_deg)
             if row["h_over_e"] == row["h_over_e"]:
-                kf.reads.append((tv.parallax_med_deg, row["parallax_med_px"]))
+                kf.reads.append((tv.parallax_med_deg, row["parallax_med_px"], row["h_over_e"]))
+                if tv.inlier_mask is not None and tv.ok_e:
+                    # read when the interval closes, if it can change the quadrant
+                    kf.rot_pending.append((cur.index, row["h_over_e"], tv.parallax_med_deg,
+                                           p_ref[tv.inlier_mask], p_cur[tv.inlier_mask]))
             if row["parallax_med_px"] < self._he_min_px:
                 self._two_interval_sel = sel  # read after the geometry stage (diagnostic)
         if not tv.ok_e:
@@ -355,15 +372,19 @@ class CameraFrontend:
         ``two_interval_px`` (or when no row could be read)."""
         if not kf.reads:
             return True
-        par, px = np.array(kf.reads).T
+        par, px, _ = np.array(kf.reads).T
         upper = px[par >= np.median(par)]
         # a hair of margin: reading an interval the rule would not is harmless, the reverse not
         return bool(np.median(upper) < self.params.two_interval_px * (1 + 1e-9))
 
     def _close_interval(self) -> None:
-        """Read the pending frames two keyframe intervals back if the interval was short."""
+        """Take the readings that wait for the interval to close: the rotation-only fits that
+        can change a quadrant, and the two-interval readings if the interval was short."""
         kf = self._kf
-        if kf is None or not kf.pending:
+        if kf is None:
+            return
+        self._close_rotation_fits(kf)
+        if not kf.pending:
             return
         pending, kf.pending = kf.pending, []
         if not self._interval_short(kf):
@@ -382,6 +403,31 @@ class CameraFrontend:
                        "parallax_med_px_2kf": self._deg_to_px(tv.parallax_med_deg)}
             upd["ms_diagnostic"] = (self._clock() - t0) * 1e3
             self._updates.append((frame, upd))
+
+    def _close_rotation_fits(self, kf: _Keyframe) -> None:
+        """The rotation-only fit of the frames where it can move the reading from the planar
+        quadrant to the rotation quadrant (module docstring): frames whose own H/E and parallax
+        are in the planar quadrant, and, when the interval's reading (medians over its upper
+        half by parallax) is, the frames of that upper half."""
+        pending, kf.rot_pending = kf.rot_pending, []
+        if not pending or self._K is None:
+            return
+        p = self.params
+        # a hair of margin: reading a frame the rules would not is harmless, the reverse not
+        he_line = p.rot_fit_he * (1 - 1e-9)
+        par_line = p.rot_fit_parallax_deg * (1 - 1e-9)
+        par, _, he = np.array(kf.reads).T
+        split = float(np.median(par))
+        upper = par >= split
+        interval = bool(np.median(he[upper]) > he_line and np.median(par[upper]) >= par_line)
+        for frame, he_f, par_f, p_ref, p_cur in pending:
+            own = he_f > he_line and par_f >= par_line
+            if not (own or (interval and par_f >= split)):
+                continue
+            t0 = self._clock()
+            rpx, scale = rotation_only_fit(p_ref, p_cur, self._K)
+            self._updates.append((frame, {"rot_only_px": rpx, "rot_focal_scale": scale,
+                                          "ms_diagnostic": (self._clock() - t0) * 1e3}))
 
     def _photometric(self, cur: _View, prev: _View, q: np.ndarray, t: np.ndarray,
                      row: dict[str, Any]) -> None:
@@ -424,7 +470,6 @@ class CameraFrontend:
             with timer("photometric"):
                 self._photometric(cur, prev, q, t, row)
             self._two_interval_sel = None
-            self._rot_pts = None
             with timer("geometry"):
                 lost = self._geometry(cur, kf, row)
             # frontdiag's own readings, not stages of the frontend: timed apart, so the
@@ -432,9 +477,6 @@ class CameraFrontend:
             with timer("diagnostic"):
                 if self._two_interval_sel is not None:
                     self._queue_two_intervals(cur, kf, self._two_interval_sel)
-                if self._rot_pts is not None and self._K is not None:
-                    row["rot_only_px"], row["rot_focal_scale"] = rotation_only_fit(
-                        *self._rot_pts, self._K)
             if len(cur.feats) < 2:
                 row["status"] = "no_features"
             reason = self._keyframe_reason(lost, kf, row)
