@@ -51,7 +51,7 @@ def fetch(entry: dict[str, str], out: Path, local: Path | None = None) -> Path:
     except subprocess.CalledProcessError as exc:
         err = exc.stderr.decode(errors="replace").strip().splitlines()
         raise SystemExit(f"{entry['repo']}@{entry['commit'][:10]}:{entry['path']}: "
-                         f"{err[-1] if err else exc} (offline? use --local DIR with a clone)")
+                         f"{err[-1] if err else exc} (offline? use --local DIR with a clone)") from None
     digest = hashlib.sha256(blob).hexdigest()
     if digest != entry["sha256"]:
         raise SystemExit(f"{entry['repo']}:{entry['path']}: sha256 {digest}, expected "

@@ -233,6 +233,26 @@ def interrupted(row: dict[str, Any]) -> bool:
     return row.get("error") == "interrupted"
 
 
+def recording_bytes(path: Path) -> int:
+    """Size on disk of a recording (a file, or a ROS 2 bag folder's files)."""
+    try:
+        if path.is_dir():
+            return sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
+        return path.stat().st_size
+    except OSError:  # reported when its task runs
+        return 0
+
+
+def largest_first(tasks: list[Task]) -> list[int]:
+    """The order in which to hand the tasks out: largest recording first (ties in the given
+    order). The work is spread greedily over the workers as they come free, so a large
+    recording started last would leave the others idle while it runs alone; started first, the
+    small ones fill in around it (longest-processing-time-first scheduling, Graham 1969). The
+    size on disk stands in for the work: frames times pixels, compressed alike within a fleet."""
+    size = [recording_bytes(t.path) for t in tasks]
+    return sorted(range(len(tasks)), key=lambda i: -size[i])
+
+
 def run_local(tasks: list[Task], jobs: int, on_row: RowFn | None = None) -> list[dict[str, Any]]:
     """The tasks on ``jobs`` local processes (in this process when ``jobs`` is 1).
 
@@ -255,11 +275,11 @@ def run_local(tasks: list[Task], jobs: int, on_row: RowFn | None = None) -> list
         except KeyboardInterrupt:  # between two recordings, or while writing one's results
             pass
     else:
-        from frontdiag.parallel import _context, drain, worker_init
+        from frontdiag.parallel import FLEET_PRELOAD, _context, drain, worker_init
 
-        pool = ProcessPoolExecutor(max_workers=jobs, mp_context=_context(),
+        pool = ProcessPoolExecutor(max_workers=jobs, mp_context=_context(FLEET_PRELOAD),
                                    initializer=worker_init)
-        futs = {pool.submit(analyse_one, t): i for i, t in enumerate(tasks)}
+        futs = {pool.submit(analyse_one, tasks[i]): i for i in largest_first(tasks)}
         stop = False
         try:
             for fut in as_completed(futs):
@@ -304,8 +324,9 @@ def run_dask(tasks: list[Task], scheduler: str, jobs: int, on_row: RowFn | None 
                               hint="start one with `dask scheduler` and `dask worker ADDRESS`, "
                                    "or pass --scheduler local") from exc
     try:
-        futs = client.map(analyse_one, tasks, pure=False)
-        index = {f.key: i for i, f in enumerate(futs)}
+        order = largest_first(tasks)
+        futs = client.map(analyse_one, [tasks[i] for i in order], pure=False)
+        index = {f.key: i for i, f in zip(order, futs, strict=True)}
         rows: list[dict[str, Any] | None] = [None] * len(tasks)
         try:
             for fut in dask_completed(futs):

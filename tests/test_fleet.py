@@ -11,7 +11,14 @@ from recording_factory import write_recording
 
 from frontdiag.api import AnalysisOptions
 from frontdiag.cli import main
-from frontdiag.fleet import SUMMARY_COLUMNS, discover, plan_tasks, run_dask, run_local
+from frontdiag.fleet import (
+    SUMMARY_COLUMNS,
+    discover,
+    largest_first,
+    plan_tasks,
+    run_dask,
+    run_local,
+)
 
 STABLE = [c for c in SUMMARY_COLUMNS if c not in ("seconds", "status", "path")]
 
@@ -63,6 +70,22 @@ def test_discover_reads_folders_and_globs(logs: Path) -> None:
     assert [p.name for p in discover([str(logs / "r[02].mcap")])] == ["r0.mcap", "r2.mcap"]
     with pytest.raises(Exception, match="no such file"):
         discover([logs / "nope*.mcap"])
+
+
+def test_the_largest_recordings_are_handed_out_first(tmp_path: Path) -> None:
+    # longest-processing-time first: a large recording started last would run alone at the end
+    d = tmp_path / "in"
+    d.mkdir()
+    for name, n in (("a", 6), ("b", 20), ("c", 6), ("d", 12)):
+        write_recording(d / f"{name}.mcap", "mcap", n=n, seed=1)
+    write_recording(d / "e", "ros2-db3", n=30, seed=1)  # a bag folder: the files inside it
+    tasks = plan_tasks([d / "a.mcap", d / "b.mcap", d / "c.mcap", d / "d.mcap", d / "e"],
+                       tmp_path / "out", AnalysisOptions())
+    order = largest_first(tasks)
+    assert [tasks[i].out.name for i in order] == ["e", "b", "d", "a", "c"]  # a, c: equal sizes
+    # handed out in that order, the rows still come back in the order of the recordings
+    rows = run_local(tasks, jobs=2)
+    assert [r["recording"] for r in rows] == ["a", "b", "c", "d", "e"]
 
 
 def test_dask_local_cluster_gives_the_local_summary(logs: Path, tmp_path: Path) -> None:

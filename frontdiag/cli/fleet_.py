@@ -37,9 +37,9 @@ def run_fleet(logs: list[Path], out: Path | None, opts: Any, *, jobs: int,
     if out is None:
         raise ConfigError("several recordings need --out DIR (one result folder each)")
     if jobs > 1 and not scheduler:
-        from frontdiag.parallel import prestart
+        from frontdiag.parallel import FLEET_PRELOAD, prestart
 
-        prestart()  # the workers' imports overlap the planning (content hashes)
+        prestart(FLEET_PRELOAD)  # the workers' imports overlap the planning (content hashes)
     tasks = fleet.plan_tasks(logs, out, opts, fail_on=fail_on, csv=csv, force=force)
     out = prepare_out_dir(out, [t.path for t in tasks])
     err = make_console(stderr=True)
