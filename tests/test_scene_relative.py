@@ -225,6 +225,20 @@ def test_a_translating_3d_scene_does_not_read_as_rotation() -> None:
     assert resid > 3 * homography_threshold_px(1.0)
 
 
+@pytest.mark.parametrize("n", [150, 400])
+def test_the_rotation_fit_residual_is_over_every_correspondence(n: int) -> None:
+    # the focal is searched on at most ROT_SEARCH_POINTS of them; the residual reported is over
+    # all of them, also when the search already used all of them (then it is not recomputed)
+    from frontdiag.camera.geometry import _rotation_residuals_px
+
+    P = _scene(n, seed=12)
+    R = cv2.Rodrigues(np.array([0.0, np.radians(4.0), 0.0]))[0]
+    p0 = _project(P, K_TRUE, np.eye(3), np.zeros(3), 0.7, seed=13)
+    p1 = _project(P, K_TRUE, R, np.array([-0.2, 0.0, 0.05]), 0.7, seed=14)
+    resid, scale = rotation_only_fit(p0, p1, K_TRUE)
+    assert resid == float(_rotation_residuals_px(p0, p1, K_TRUE, np.array([scale]))[0])
+
+
 def test_h_over_e_high_with_a_rotation_fit_reads_rotation_not_planar(ruleset) -> None:
     """An approximate K leaves 2 deg of apparent parallax after a pan: the angle alone would say
     planar; the rotation-only fit says the views differ by a rotation only."""

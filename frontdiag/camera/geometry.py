@@ -260,11 +260,15 @@ def rotation_only_fit(p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray
     step = grid[1] - grid[0]
     res = _rotation_residuals_px(p_ref[sub], p_cur[sub], K, np.exp(grid))
     best_log = float(grid[int(np.argmin(res))])  # first of equals, as a scan in order keeps
+    best = float(res.min())
     fine = np.clip(best_log + np.linspace(-step, step, 5), lo, hi)
     res_fine = _rotation_residuals_px(p_ref[sub], p_cur[sub], K, np.exp(fine))
-    if float(res_fine.min()) < float(res.min()):
+    if float(res_fine.min()) < best:
         best_log = float(fine[int(np.argmin(res_fine))])
+        best = float(res_fine.min())
     s_best = float(np.exp(best_log))
+    if len(sub) == len(p_ref):  # the subset was every correspondence: that is the residual
+        return best, s_best
     return float(_rotation_residuals_px(p_ref, p_cur, K, np.array([s_best]))[0]), s_best
 
 
