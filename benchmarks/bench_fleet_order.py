@@ -58,7 +58,7 @@ def main() -> None:
                 t0 = time.perf_counter()
                 if jobs > 1:
                     parallel.prestart(preload)
-                tasks = fleet.plan_tasks(logs, tmp / f"out{r}_{jobs}_{len(best)}_{name[:5]}",
+                tasks = fleet.plan_tasks(logs, tmp / f"round{r}" / name.replace(" ", "_").replace(",", ""),
                                          AnalysisOptions())
                 fleet.run_local(tasks, jobs)
                 best[name] = min(best[name], time.perf_counter() - t0)

@@ -31,7 +31,7 @@ from frontdiag.io.camera_info import (
     parse_intrinsics,
 )
 from frontdiag.io.decode import header_stamp_ns, odometry_pose
-from frontdiag.io.readers import Recording, open_recording
+from frontdiag.io.readers import Recording, open_recording, recording_size
 from frontdiag.io.topics import TopicChoice, choose_topics
 from frontdiag.metrics import CAMERA_COLUMNS, LIDAR_COLUMNS
 from frontdiag.records import Intrinsics
@@ -397,7 +397,7 @@ def _manifest(path: Path, rec: Recording, choice: TopicChoice, intr: Intrinsics 
         "versions": versions(),
         "created_unix_s": int(time.time()),
         "input": {"path": str(path.resolve()), "backend": rec.backend,
-                  "size_bytes": _size(path), "start_ns": rec.start_ns, "end_ns": rec.end_ns},
+                  "size_bytes": recording_size(path), "start_ns": rec.start_ns, "end_ns": rec.end_ns},
         "topics": {"camera": choice.camera, "camera_type": choice.camera_type,
                    "camera_info": choice.camera_info, "lidar": choice.lidar,
                    "lidar_type": choice.lidar_type, "odometry": choice.odometry},
@@ -413,12 +413,6 @@ def _manifest(path: Path, rec: Recording, choice: TopicChoice, intr: Intrinsics 
         "interrupted": interrupted,
         "seconds": round(seconds, 3),
     }
-
-
-def _size(path: Path) -> int:
-    if path.is_dir():
-        return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
-    return path.stat().st_size
 
 
 def analyze(path: Path | str, **kwargs: Any) -> pd.DataFrame:

@@ -27,6 +27,7 @@ import pandas as pd
 
 from frontdiag import __version__
 from frontdiag.errors import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, ConfigError, FrontdiagError
+from frontdiag.io.readers import recording_files, recording_size
 
 log = logging.getLogger(__name__)
 
@@ -88,8 +89,7 @@ def result_names(paths: list[Path]) -> list[str]:
 def content_hash(path: Path) -> str:
     """BLAKE2b of the recording's bytes (every file of a folder, by relative name)."""
     h = hashlib.blake2b(digest_size=16)
-    files = sorted(f for f in path.rglob("*") if f.is_file()) if path.is_dir() else [path]
-    for f in files:
+    for f in recording_files(path):
         h.update(str(f.relative_to(path) if path.is_dir() else f.name).encode())
         with open(f, "rb") as fh:
             while chunk := fh.read(1 << 20):
@@ -233,12 +233,9 @@ def interrupted(row: dict[str, Any]) -> bool:
     return row.get("error") == "interrupted"
 
 
-def recording_bytes(path: Path) -> int:
-    """Size on disk of a recording (a file, or a ROS 2 bag folder's files)."""
+def _size_or_zero(path: Path) -> int:
     try:
-        if path.is_dir():
-            return sum(f.stat().st_size for f in path.rglob("*") if f.is_file())
-        return path.stat().st_size
+        return recording_size(path)
     except OSError:  # reported when its task runs
         return 0
 
@@ -249,7 +246,7 @@ def largest_first(tasks: list[Task]) -> list[int]:
     recording started last would leave the others idle while it runs alone; started first, the
     small ones fill in around it (longest-processing-time-first scheduling, Graham 1969). The
     size on disk stands in for the work: frames times pixels, compressed alike within a fleet."""
-    size = [recording_bytes(t.path) for t in tasks]
+    size = [_size_or_zero(t.path) for t in tasks]
     return sorted(range(len(tasks)), key=lambda i: -size[i])
 
 

@@ -560,6 +560,18 @@ class _Plan:
     container: str = ""
 
 
+def recording_files(path: Path) -> list[Path]:
+    """The files of a recording: the file itself, or every file below a bag folder (sorted)."""
+    if path.is_dir():
+        return sorted(f for f in path.rglob("*") if f.is_file())
+    return [path]
+
+
+def recording_size(path: Path) -> int:
+    """Bytes on disk of a recording (a file, or every file below a bag folder)."""
+    return sum(f.stat().st_size for f in recording_files(path))
+
+
 def plan(path: Path) -> _Plan:
     """Decide which backend reads ``path`` (pure: looks at names and magic bytes only)."""
     if not path.exists():
