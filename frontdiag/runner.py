@@ -369,10 +369,12 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
                         check_all_failed(cam_stream)
                         continue
                     row = cam_stream.analyse(frame, cam_front, "camera", rec_start)
-                    complete()
                     if cam_stream.owned:
                         rows.append(row)
                         by_frame[frame.index] = row
+                    # after the row is registered: a frame that closes its keyframe interval
+                    # completes readings of its own row too (it is that interval's last frame)
+                    complete()
                     if cam_stream.draining:
                         continue
                     if record_keys or until is not None:

@@ -49,3 +49,48 @@ def test_rules_set_the_rotation_fit_lines(tmp_path: Path) -> None:
     # a line set lower by the caller is kept
     own = AnalysisOptions(camera_params=replace(CameraParams(), rot_fit_he=0.5))
     assert _read_intervals_for(load_ruleset(overrides=ov), own).camera_params.rot_fit_he == 0.5
+
+
+def _frontend_by_hand(path: Path, params: CameraParams) -> dict[int, dict[str, float]]:
+    """Every row of the camera frontend driven frame by frame, with every completion applied
+    to the row it names, including the row of the frame that closed the interval."""
+    from frontdiag.api import resolve_intrinsics
+    from frontdiag.camera.frontend import CameraFrontend
+    from frontdiag.io.readers import open_recording
+    from frontdiag.io.topics import choose_topics
+    from frontdiag.runner import iter_camera_frames
+
+    rows: dict[int, dict[str, float]] = {}
+    with open_recording(path) as rec:
+        choice = choose_topics(rec.topics)
+        intr = resolve_intrinsics(rec, choice, AnalysisOptions(), [])
+        front = CameraFrontend(params, intr)
+        for frame in iter_camera_frames(rec, choice.camera, choice.camera_type):
+            rows[frame.index] = front.process(frame)
+            for f, values in front.take_updates():
+                rows[f].update({k: v for k, v in values.items() if not k.startswith("ms_")})
+        front.finish()
+        for f, values in front.take_updates():
+            rows[f].update({k: v for k, v in values.items() if not k.startswith("ms_")})
+    return rows
+
+
+@pytest.mark.parametrize("name", ["planar_approach.mcap", "parked_panning"])
+def test_the_table_keeps_the_readings_completed_by_the_frame_that_closes_an_interval(
+        name: str) -> None:
+    """A keyframe is made on the frame with the most parallax of its interval; the readings
+    taken when the interval closes belong to that frame's row as well."""
+    params = replace(EVERY_FRAME, two_interval_px=1e6)  # every interval read two back too
+    by_hand = _frontend_by_hand(SAMPLES / name, params)
+    table = run_analysis(SAMPLES / name, AnalysisOptions(camera_params=params)).table
+    closing = [f for f, r in by_hand.items() if r["keyframe_reason"] not in ("", "first_frame")]
+    assert len(closing) >= 3
+    got = table.set_index("frame")
+    for col in ("rot_only_px", "h_over_e_2kf", "parallax_med_px_2kf"):
+        want = np.array([by_hand[f].get(col, np.nan) for f in got.index], dtype=float)
+        np.testing.assert_array_equal(got[col].to_numpy(dtype=float), want, err_msg=col)
+        # and the closing frames do carry them where the frontend took them
+        taken = [f for f in closing if by_hand[f].get(col, np.nan) == by_hand[f].get(col)]
+        assert all(got.loc[f, col] == got.loc[f, col] for f in taken)
+    assert any(by_hand[f].get("rot_only_px", np.nan) == by_hand[f].get("rot_only_px")
+               for f in closing)
