@@ -73,8 +73,18 @@ def test_persistence_with_gaps_inside_the_window() -> None:
 
 
 def test_persistence_shorter_group_than_window() -> None:
-    assert persist(np.array([1, 1], dtype=bool), 3, 5).tolist() == [False, False]
-    assert persist(np.array([1, 1], dtype=bool), 2, 5).tolist() == [True, True]
+    """A topic shorter than the window is one window, and the same share must hit:
+    ceil(k * rows / n) rows, so a condition that fills three panorama shots is reported."""
+    b = lambda *v: np.array(v, dtype=bool)  # noqa: E731
+    assert persist(b(0, 1, 1), 3, 5).tolist() == [False, True, True]  # 2 of 3 >= ceil(1.8)
+    assert persist(b(0, 1, 0), 3, 5).tolist() == [False, False, False]  # a lone hit stays out
+    assert persist(b(1, 1), 3, 5).tolist() == [True, True]  # ceil(1.2) = 2 of 2
+    assert persist(b(0, 1), 3, 5).tolist() == [False, False]
+    assert persist(b(1, 1, 0, 1), 3, 5).tolist() == [True, True, False, True]  # 3 of 4
+    assert persist(b(1, 0, 0, 1), 3, 5).tolist() == [False, False, False, False]
+    assert persist(b(1), 3, 5).tolist() == [True]  # one row: its own reading
+    # from n rows on, k of n as before
+    assert persist(b(1, 1, 0, 0, 0), 3, 5).tolist() == [False] * 5
 
 
 # --- named checks on the reference rows ----------------------------------------------------------

@@ -75,11 +75,18 @@ def topic_groups(table: pd.DataFrame, sensor: str) -> Iterator[tuple[str, np.nda
 
 
 def persist(raw: np.ndarray, k: int, n: int) -> np.ndarray:
-    """Keep raw[i] only where some window of n consecutive rows containing i holds >= k hits."""
+    """Keep raw[i] only where some window of n consecutive rows containing i holds >= k hits.
+
+    A topic with fewer than n rows is one window, and the same share of it must hit,
+    ceil(k * rows / n): 2 of 3 rows for k = 3 of n = 5. Keeping k there would make a condition
+    that fills a short recording (three panorama shots) impossible to report at all.
+    """
     m = len(raw)
     if m == 0:
         return raw.copy()
-    n = min(n, m)
+    if m < n:
+        k = max(1, -(-k * m // n))
+        n = m
     counts = np.convolve(raw.astype(int), np.ones(n, dtype=int), mode="valid")
     good = (counts >= k).astype(int)
     covered = np.convolve(good, np.ones(n, dtype=int), mode="full")[:m] > 0
