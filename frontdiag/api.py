@@ -251,7 +251,8 @@ def _read_intervals_for(ruleset: Any, opts: AnalysisOptions) -> AnalysisOptions:
     It takes its two-interval reading on intervals shorter than ``two_interval_px``; rules that
     read intervals up to a larger ``min_parallax_px`` raise it. It takes the rotation-only fit
     where H/E is above ``rot_fit_he`` with parallax at least ``rot_fit_parallax_deg``; rules
-    with a ``rot_fit_px`` and a lower ``he_degenerate`` or ``parallax_split_deg`` lower them.
+    with a ``rot_fit_px`` and a lower ``he_degenerate`` or ``parallax_split_deg`` lower them; it
+    also takes it on intervals that turned ``rot_fit_turn_px``, lowered to the rules' own.
     """
     from dataclasses import replace
 
@@ -265,9 +266,12 @@ def _read_intervals_for(ruleset: Any, opts: AnalysisOptions) -> AnalysisOptions:
     he = min((float(r.param("he_degenerate")) for r in rot), default=cp.rot_fit_he)
     par = min((float(r.param("parallax_split_deg")) for r in rot),
               default=cp.rot_fit_parallax_deg)
+    turn = min((float(r.param("rot_fit_turn_px")) for r in rot if "rot_fit_turn_px" in r.params),
+               default=cp.rot_fit_turn_px)
     new = replace(cp, two_interval_px=max(need, cp.two_interval_px),
                   rot_fit_he=min(he, cp.rot_fit_he),
-                  rot_fit_parallax_deg=min(par, cp.rot_fit_parallax_deg))
+                  rot_fit_parallax_deg=min(par, cp.rot_fit_parallax_deg),
+                  rot_fit_turn_px=min(turn, cp.rot_fit_turn_px))
     return opts if new == cp else replace(opts, camera_params=new)
 
 

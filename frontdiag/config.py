@@ -58,6 +58,10 @@ class CameraConfig(_Strict):
                                           "(lowered to the rules' he_degenerate)")
     rot_fit_parallax_deg: float = Field(default=0.3, ge=0.0, le=90.0,
                                         description="... with at least this parallax (deg)")
+    rot_fit_turn_px: float = Field(default=10.0, ge=0.0, le=100000.0,
+                                   description="... and on keyframe intervals whose rotation "
+                                               "moves the image this much (px), whatever H/E "
+                                               "(lowered to the rules' rot_fit_turn_px)")
     seed: int = Field(default=0, ge=0, description="RANSAC seed")
 
     @model_validator(mode="after")

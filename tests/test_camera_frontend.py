@@ -251,18 +251,35 @@ def test_the_rotation_fit_is_taken_where_it_can_change_the_quadrant() -> None:
     assert len(read) >= 5, [(r["h_over_e"], r["parallax_med_deg"]) for r in planar]
     fits = [r["rot_only_px"] for r in read]
     assert all(np.isfinite(fits)) and np.median(fits) > 2.45, fits
-    # a walk through a 3D room reads H/E low: no fit can move it into a quadrant a rule wants
+    # a walk through a 3D room reads H/E low: no fit can move it into a quadrant a rule wants,
+    # except on intervals whose rotation moves the image rot_fit_turn_px (10 px), where
+    # FD-ROT-001 reads a turn explained by rotation as rotation whatever H/E: there the fit is
+    # taken on the interval's upper half by parallax, and the walk's translation shows in it
     room_rows = run_completed(CameraFrontend(CameraParams(), Intrinsics(K=K)),
                               walk(10, step_deg=0.3, step_m=0.08))
     assert all(r["h_over_e"] < 0.9 for r in room_rows[2:]), [r["h_over_e"] for r in room_rows]
+    assert max(r["rot_deg"] for r in room_rows[1:]) < 1.3  # under 10 px at f = 457 px
     assert all(np.isnan(r["rot_only_px"]) for r in room_rows)
-    # taken on every frame (both lines at 0), the same frames get the same values
-    every = run_completed(CameraFrontend(CameraParams(rot_fit_he=0.0, rot_fit_parallax_deg=0.0),
-                                         Intrinsics(K=K)), walk(10, step_deg=0.3, step_m=0.08))
+    # turning 0.6 deg a frame, the intervals' upper halves turn 1.8-2.4 deg (14-20 px): the fit
+    # is taken there, and it reads the walk's translation
+    turning = run_completed(CameraFrontend(CameraParams(), Intrinsics(K=K)),
+                            walk(10, step_deg=0.6, step_m=0.08))
+    assert all(r["h_over_e"] < 0.9 for r in turning[2:]), [r["h_over_e"] for r in turning]
+    fitted = [r for r in turning if r["rot_only_px"] == r["rot_only_px"]]
+    assert len(fitted) >= 3, [r["rot_deg"] for r in turning]
+    assert all(r["rot_deg"] >= 1.5 for r in fitted), [r["rot_deg"] for r in fitted]
+    assert all(r["rot_only_px"] > 2.45 for r in fitted), [r["rot_only_px"] for r in fitted]
+    # taken on every frame (the three lines at 0), the same frames get the same values
+    all_lines_0 = CameraParams(rot_fit_he=0.0, rot_fit_parallax_deg=0.0, rot_fit_turn_px=0.0)
+    every = run_completed(CameraFrontend(all_lines_0, Intrinsics(K=K)),
+                          walk(10, step_deg=0.6, step_m=0.08))
     assert sum(r["rot_only_px"] == r["rot_only_px"] for r in every) >= 8
+    for a, b in zip(turning, every, strict=True):
+        if a["rot_only_px"] == a["rot_only_px"]:
+            assert (a["rot_only_px"], a["rot_focal_scale"]) == (b["rot_only_px"],
+                                                                b["rot_focal_scale"])
     for a, b in zip(planar, run_completed(
-            CameraFrontend(CameraParams(rot_fit_he=0.0, rot_fit_parallax_deg=0.0),
-                           Intrinsics(K=K)), _wall_walk(12)), strict=True):
+            CameraFrontend(all_lines_0, Intrinsics(K=K)), _wall_walk(12)), strict=True):
         if a["rot_only_px"] == a["rot_only_px"]:
             assert (a["rot_only_px"], a["rot_focal_scale"]) == (b["rot_only_px"],
                                                                 b["rot_focal_scale"])

@@ -14,7 +14,7 @@ from frontdiag.camera.frontend import CameraParams
 from frontdiag.verdicts import load_ruleset
 
 SAMPLES = Path(__file__).resolve().parents[1] / "sample_logs"
-EVERY_FRAME = CameraParams(rot_fit_he=0.0, rot_fit_parallax_deg=0.0)
+EVERY_FRAME = CameraParams(rot_fit_he=0.0, rot_fit_parallax_deg=0.0, rot_fit_turn_px=0.0)
 
 
 @pytest.mark.parametrize("name", ["parked_panning", "planar_approach.mcap", "healthy_loop.mcap"])
@@ -32,7 +32,9 @@ def test_the_rotation_fit_where_it_can_matter_gives_the_verdicts_of_every_frame(
     every = b["rot_only_px"].notna().sum()
     if name == "planar_approach.mcap":  # the planar quadrant throughout: every frame needs it
         assert taken.sum() == every
-    else:  # mostly H/E low, or parallax under the split: few frames need it
+    elif name == "parked_panning":  # a pan: the turning intervals' upper halves need it
+        assert every // 4 <= taken.sum() < every, (taken.sum(), every)
+    else:  # a drive: H/E low, or parallax under the split, no sharp turn: few frames need it
         assert every >= 20 and taken.sum() <= every // 4, (taken.sum(), every)
 
 
@@ -46,6 +48,9 @@ def test_rules_set_the_rotation_fit_lines(tmp_path: Path) -> None:
     assert lowered.camera_params is not None
     assert (lowered.camera_params.rot_fit_he, lowered.camera_params.rot_fit_parallax_deg) == \
         (0.8, 0.2)
+    ov.write_text("[FD-ROT-001]\nthreshold.rot_fit_turn_px = 4.0\n")
+    turn = _read_intervals_for(load_ruleset(overrides=ov), AnalysisOptions())
+    assert turn.camera_params is not None and turn.camera_params.rot_fit_turn_px == 4.0
     # a line set lower by the caller is kept
     own = AnalysisOptions(camera_params=replace(CameraParams(), rot_fit_he=0.5))
     assert _read_intervals_for(load_ruleset(overrides=ov), own).camera_params.rot_fit_he == 0.5

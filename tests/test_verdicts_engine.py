@@ -278,13 +278,57 @@ def test_standing_still_is_reported_as_pure_rotation_with_its_reason(ruleset, ro
     standing still carries the reason "standing still"."""
     from frontdiag.verdicts.explain import explain_row
 
-    row = {"h_over_e": 0.98, "parallax_med_deg": 0.02, "rot_deg": rot}
+    row = {"h_over_e": 0.98, "parallax_med_deg": 0.02, "parallax_med_px": 0.3, "rot_deg": rot}
     res = evaluate(frames(20, {range(5, 15): row}), ruleset)
     assert conds(res, 10) == ["pure_rotation"]
     rot_rule = next(e for e in explain_row(res, 10) if e.rule.id == "FD-ROT-001")
     assert rot_rule.fired
     assert any("standing still" in line for line in rot_rule.check_lines) == still
     assert "standing still" in rot_rule.rule.title
+
+
+@pytest.mark.parametrize(("he", "par_deg", "par_px", "rot", "want"), [
+    (0.6, 0.05, 0.8, 0.05, ["pure_rotation"]),   # still, people crossing: H/E not read
+    (0.6, 0.05, 3.5, 0.05, []),                  # moved more than the 2.45 px noise bound
+    (0.6, 0.05, 0.8, 0.5, []),                   # turned: not still, and H/E is low
+    (0.6, 0.4, 0.8, 0.05, []),                   # parallax over the 0.3 deg split
+])
+def test_standing_still_is_decided_without_h_over_e(ruleset, he, par_deg, par_px, rot,
+                                                    want) -> None:
+    """With no motion every static point is an inlier of any E with R = I, so E also takes the
+    points moving through the view and H/E falls: standing still is read on the motion alone,
+    parallax under the split and under 2.45 px in the image, rotation under 0.3 deg."""
+    row = {"h_over_e": he, "parallax_med_deg": par_deg, "parallax_med_px": par_px,
+           "rot_deg": rot}
+    lines = _rotation_reading(ruleset, row, want)
+    assert not want or any("standing still" in ln for ln in lines)
+    assert not want or any("is not read when standing still" in ln for ln in lines)
+
+
+def _rotation_reading(ruleset, row: dict, want: list[str]) -> list[str]:
+    """Conditions of the middle of ten frames reading ``row``, checked against ``want``, and
+    FD-ROT-001's explain lines there."""
+    from frontdiag.verdicts.explain import explain_row
+
+    res = evaluate(frames(20, {range(5, 15): row}), ruleset)
+    assert conds(res, 10) == want
+    return next(e for e in explain_row(res, 10) if e.rule.id == "FD-ROT-001").check_lines
+
+
+@pytest.mark.parametrize(("he", "rot", "rot_px", "want"), [
+    (0.7, 20.0, 1.2, ["pure_rotation"]),   # a panorama: E absorbs mismatches, H/E falls
+    (0.7, 20.0, 6.0, []),                  # turned and translated: no rotation explains it
+    (0.7, 1.0, 1.2, []),                   # 8.4 px at this focal: within E's scatter
+    (0.7, 1.4, 1.2, ["pure_rotation"]),    # 11.7 px: over the 10 px line
+])
+def test_a_turn_explained_by_rotation_is_rotation_whatever_h_over_e(ruleset, he, rot, rot_px,
+                                                                    want) -> None:
+    # parallax 6 deg reading 50 px: a focal of 476 px, so the turn moves the image
+    # 476 tan(rot) px
+    row = {"h_over_e": he, "parallax_med_deg": 6.0, "parallax_med_px": 50.0, "rot_deg": rot,
+           "rot_only_px": rot_px}
+    lines = _rotation_reading(ruleset, row, want)
+    assert not want or any("rotation alone explains" in ln for ln in lines)
 
 
 def _keyframe_intervals(he_first: float, he_last: float, n: int = 40) -> pd.DataFrame:

@@ -36,8 +36,13 @@ above ``rot_fit_he`` with parallax at least ``rot_fit_parallax_deg``, read on th
 over its interval (the medians over the interval's upper half by parallax, where FD-PLN-001 and
 FD-ROT-001 take the reading). So it is also taken when the interval closes, on the frames of its
 upper half when the interval's reading is in that quadrant and on any frame whose own reading
-is; elsewhere the columns stay empty, since a rotation fit cannot change a quadrant whose H/E is
-low or whose parallax is already under the split.
+is. It is also taken on the frames of that upper half when their median rotation moves the image
+by at least ``rot_fit_turn_px``, whatever H/E: a camera that only turns leaves E without a
+translation, so E takes every correct correspondence for any epipole plus the mismatches along
+the one RANSAC picks, and H/E falls with the mismatch share (FD-ROT-001's ``rot_fit_turn_px``,
+read over the same frames). Elsewhere the
+columns stay empty, since a rotation fit cannot change a quadrant whose H/E is low or whose
+parallax is already under the split.
 """
 
 from __future__ import annotations
@@ -108,6 +113,7 @@ class CameraParams:
     two_interval_px: float = 4.9  # read intervals shorter than this two keyframes back
     rot_fit_he: float = 0.9  # rotation-only fit where H/E is above this (module docstring)
     rot_fit_parallax_deg: float = 0.3  # ... with at least this much parallax
+    rot_fit_turn_px: float = 10.0  # ... and on intervals that turned this much, whatever H/E
     seed: int = 0
 
     def as_dict(self) -> dict[str, Any]:
@@ -134,15 +140,16 @@ class _Keyframe:
     last_t: np.ndarray | None = None
     parent: _View | None = None  # the keyframe before this one, when tracks link the two
     parent_idx: np.ndarray | None = None  # per feature of ``view``: its track in ``parent``, or -1
-    reads: list[tuple[float, float, float]] = field(default_factory=list)
-    """(parallax deg, parallax px, H/E) per row with both readings."""
+    reads: list[tuple[float, float, float, float]] = field(default_factory=list)
+    """(parallax deg, parallax px, H/E, rotation px) per row with both readings; the rotation
+    in pixels is f tan(rotation), how far it moves a point at the image centre."""
     pending: list[tuple[int, np.ndarray, np.ndarray]] = field(default_factory=list)
     """Two-interval readings to take if the interval turns out short: (frame, parent points,
     current points)."""
     rot_pending: list[tuple[int, float, float, np.ndarray, np.ndarray]] = field(
         default_factory=list)
-    """Rotation-only fits to take if the frame or its interval reads H/E high with parallax:
-    (frame, H/E, parallax deg, reference inliers, current inliers)."""
+    """Rotation-only fits to take if the frame or its interval reads H/E high with parallax, or
+    the interval turned: (frame, H/E, parallax deg, reference inliers, current inliers)."""
 
 
 def _row_template() -> dict[str, Any]:
@@ -309,7 +316,8 @@ class CameraFrontend:
         if tv.parallax_med_deg == tv.parallax_med_deg:
             row["parallax_med_px"] = self._deg_to_px(tv.parallax_med_deg)
             if row["h_over_e"] == row["h_over_e"]:
-                kf.reads.append((tv.parallax_med_deg, row["parallax_med_px"], row["h_over_e"]))
+                kf.reads.append((tv.parallax_med_deg, row["parallax_med_px"], row["h_over_e"],
+                                 self._deg_to_px(min(tv.rot_deg, 89.0))))
                 if tv.inlier_mask is not None and tv.ok_e:
                     # read when the interval closes, if it can change the quadrant
                     kf.rot_pending.append((cur.index, row["h_over_e"], tv.parallax_med_deg,
@@ -372,7 +380,7 @@ class CameraFrontend:
         ``two_interval_px`` (or when no row could be read)."""
         if not kf.reads:
             return True
-        par, px, _ = np.array(kf.reads).T
+        par, px, _, _ = np.array(kf.reads).T
         upper = px[par >= np.median(par)]
         # a hair of margin: reading an interval the rule would not is harmless, the reverse not
         return bool(np.median(upper) < self.params.two_interval_px * (1 + 1e-9))
@@ -408,7 +416,8 @@ class CameraFrontend:
         """The rotation-only fit of the frames where it can move the reading from the planar
         quadrant to the rotation quadrant (module docstring): frames whose own H/E and parallax
         are in the planar quadrant, and, when the interval's reading (medians over its upper
-        half by parallax) is, the frames of that upper half."""
+        half by parallax) is, the frames of that upper half; and the frames of that upper half
+        when it turned (median rotation) at least ``rot_fit_turn_px``."""
         pending, kf.rot_pending = kf.rot_pending, []
         if not pending or self._K is None:
             return
@@ -416,13 +425,15 @@ class CameraFrontend:
         # a hair of margin: reading a frame the rules would not is harmless, the reverse not
         he_line = p.rot_fit_he * (1 - 1e-9)
         par_line = p.rot_fit_parallax_deg * (1 - 1e-9)
-        par, _, he = np.array(kf.reads).T
+        turn_line = p.rot_fit_turn_px * (1 - 1e-9)
+        par, _, he, turn = np.array(kf.reads).T
         split = float(np.median(par))
         upper = par >= split
         interval = bool(np.median(he[upper]) > he_line and np.median(par[upper]) >= par_line)
+        turned = bool(np.nanmedian(turn[upper]) >= turn_line) if upper.any() else False
         for frame, he_f, par_f, p_ref, p_cur in pending:
             own = he_f > he_line and par_f >= par_line
-            if not (own or (interval and par_f >= split)):
+            if not (own or ((interval or turned) and par_f >= split)):
                 continue
             t0 = self._clock()
             rpx, scale = rotation_only_fit(p_ref, p_cur, self._K)

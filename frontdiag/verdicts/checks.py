@@ -479,7 +479,9 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
 # --- §4 of docs/derivations.md: H/E x parallax quadrants -------------------------------------------------------
 
 def _quadrant(he: np.ndarray, par: np.ndarray, p: Params,
-              rot_px: np.ndarray | None = None) -> np.ndarray:
+              rot_px: np.ndarray | None = None, rot: np.ndarray | None = None,
+              par_px: np.ndarray | None = None, turn_px: np.ndarray | None = None
+              ) -> np.ndarray:
     """0 healthy, 1 nearly stationary, 2 planar, 3 pure rotation, -1 not computable.
 
     Parallax is low below parallax_split_deg, or, where the rule sets rot_fit_px, where a
@@ -487,6 +489,11 @@ def _quadrant(he: np.ndarray, par: np.ndarray, p: Params,
     within rot_fit_px: the angle is de-rotated with the given K, which an approximate K leaves
     inflated by the rotation it failed to remove, while the rotation-only residual is in pixels
     and does not trust K.
+
+    Where the rule sets still_rotation_deg and still_parallax_px, a reading whose parallax is
+    under both the split and still_parallax_px in the image, with a rotation under
+    still_rotation_deg, is standing still, and is put in quadrant 3 whatever H/E says
+    (:func:`standing_still`).
     """
     q = np.full(len(he), -1)
     ok = ~np.isnan(he) & ~np.isnan(par)
@@ -499,7 +506,51 @@ def _quadrant(he: np.ndarray, par: np.ndarray, p: Params,
     q[ok & ~degenerate & low] = 1
     q[ok & degenerate & ~low] = 2
     q[ok & degenerate & low] = 3
+    if rot is not None and par_px is not None:
+        q[ok & standing_still(par, par_px, rot, p)] = 3
+    if turn_px is not None and rot_px is not None:
+        q[ok & turned_only(rot_px, turn_px, p)] = 3
     return q
+
+
+def turned_only(rot_px: np.ndarray, turn_px: np.ndarray, p: Params) -> np.ndarray:
+    """A turn that a rotation-only model explains: pure rotation whatever H/E (rules with
+    rot_fit_px and rot_fit_turn_px; both read over the interval's upper half by parallax).
+
+    A camera that only turns leaves E without a translation: every correct correspondence
+    satisfies x'^T [t]x R x = 0 for any t, so RANSAC picks the epipole that also admits the most
+    mismatches along their epipolar lines, while the homography K R K^-1 admits only the
+    correct ones; H/E falls with the mismatch share (0.6-0.9 on hand-held panoramas). The
+    rotation-only residual does not have that freedom. It is read only where the rotation moved
+    the image well beyond the threshold (``turn_px``, f tan(rotation)): a turn of a few pixels
+    is within the scatter of E's rotation, and any short baseline fits a rotation within the
+    threshold.
+    """
+    if "rot_fit_px" not in p or "rot_fit_turn_px" not in p:
+        return np.zeros(len(rot_px), dtype=bool)
+    with np.errstate(invalid="ignore"):
+        return (rot_px <= p["rot_fit_px"]) & (turn_px >= p["rot_fit_turn_px"])
+
+
+def standing_still(par: np.ndarray, par_px: np.ndarray, rot: np.ndarray, p: Params
+                   ) -> np.ndarray:
+    """Neither parallax nor rotation: the camera stands still (rules with still_rotation_deg
+    and still_parallax_px). The points moved less in the image than localisation noise moves
+    them (still_parallax_px) and the camera did not turn.
+
+    H/E does not decide it. With no motion every static point maps to itself, x' = x, and
+    x^T [t]x x = 0 for every t: each static correspondence is an inlier of every essential
+    matrix with R = I, so RANSAC is free to choose the epipole that also admits the points of
+    whatever moves through the view (people, vehicles), while the homography (the identity)
+    keeps only the static ones. H/E then falls with the share of moving points and says
+    nothing about the scene; what matters is that there is no baseline, so nothing can be
+    triangulated and t is noise.
+    """
+    if "still_rotation_deg" not in p or "still_parallax_px" not in p:
+        return np.zeros(len(par), dtype=bool)
+    with np.errstate(invalid="ignore"):
+        return ((par < p["parallax_split_deg"]) & (par_px < p["still_parallax_px"])
+                & (rot < p["still_rotation_deg"]))
 
 
 def _keyframe_read(df: pd.DataFrame, p: Params) -> pd.DataFrame:
@@ -510,27 +561,36 @@ def _keyframe_read(df: pd.DataFrame, p: Params) -> pd.DataFrame:
     H/E ~ 0.95. Degeneracy is a property of the scene between two keyframes, so each row takes
     the medians of H/E and parallax over the upper half (by parallax) of the rows sharing its
     reference; the median keeps one noisy frame from deciding the interval. The rotation read is
-    the largest the reference saw (a pan grows from zero at each keyframe change). Rows without
-    a `ref_frame` (or with read_at = "frame") are read on their own.
+    the largest the reference saw (a pan grows from zero at each keyframe change); the turn in
+    pixels (``kf_turn_px``, f tan(rotation)) is the median over the same upper half as the
+    rotation-only residual it is read with. Rows without a `ref_frame` (or with
+    read_at = "frame") are read on their own.
     """
     he, par = col(df, "h_over_e"), col(df, "parallax_med_deg")
     par_px, rot = col(df, "parallax_med_px"), col(df, "rot_deg")
     rot_px = col(df, "rot_only_px")
     ref = col(df, "ref_frame")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        # the frontend's parallax_med_px is f tan(parallax_med_deg): the same focal turns the
+        # rotation into how far it moves a point at the image centre
+        focal = np.where(par > 0, par_px / np.tan(np.radians(par)), np.nan)
+        turn_px = focal * np.tan(np.radians(np.minimum(rot, 89.0)))
     out = pd.DataFrame({"kf_h_over_e": he, "kf_parallax_med_deg": par,
                         "kf_parallax_med_px": par_px, "kf_rot_deg": rot,
-                        "kf_rot_only_px": rot_px,
+                        "kf_rot_only_px": rot_px, "kf_turn_px": turn_px,
                         "kf_intervals": np.where(ref >= 0, 1.0, np.nan)})
     valid = ~np.isnan(he) & ~np.isnan(par) & (ref >= 0)
     if p.get("read_at", "frame") != "keyframe" or not valid.any():
         return out
     pos = np.flatnonzero(valid)
     rows = pd.DataFrame({"ref": ref[pos], "par": par[pos], "he": he[pos], "px": par_px[pos],
-                         "rot": rot[pos], "rpx": rot_px[pos]})
+                         "rot": rot[pos], "rpx": rot_px[pos], "turn": turn_px[pos]})
     read = _upper_half_read(rows, "par")
     # the rotation-only residual over the same higher-parallax rows (NaN-safe median)
     upper = rows[rows["par"] >= rows.groupby("ref")["par"].transform("median")]
     out.loc[pos, "kf_rot_only_px"] = upper.groupby("ref")["rpx"].median().reindex(
+        ref[pos]).to_numpy()
+    out.loc[pos, "kf_turn_px"] = upper.groupby("ref")["turn"].median().reindex(
         ref[pos]).to_numpy()
     out.loc[pos, "kf_h_over_e"] = read["he"].reindex(ref[pos]).to_numpy()
     out.loc[pos, "kf_parallax_med_deg"] = read["par"].reindex(ref[pos]).to_numpy()
@@ -584,7 +644,8 @@ def _wanted_quadrant(df: pd.DataFrame, p: Params) -> tuple[pd.DataFrame, np.ndar
     read = _keyframe_read(df, p)
     with np.errstate(invalid="ignore"):
         q = _quadrant(read["kf_h_over_e"].to_numpy(), read["kf_parallax_med_deg"].to_numpy(), p,
-                      read["kf_rot_only_px"].to_numpy())
+                      read["kf_rot_only_px"].to_numpy(), read["kf_rot_deg"].to_numpy(),
+                      read["kf_parallax_med_px"].to_numpy(), read["kf_turn_px"].to_numpy())
     return read, q == (3 if p["want"] == "pure_rotation" else 2)
 
 
@@ -643,8 +704,16 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                    "parallax)")
         he, par = kf_he, kf_par
     rpx = _v(row, "kf_rot_only_px")
+    rot = _v(row, "kf_rot_deg")
+    rot = _v(row, "rot_deg") if np.isnan(rot) else rot
+    px = _v(row, "kf_parallax_med_px")
+    px = _v(row, "parallax_med_px") if np.isnan(px) else px
     with np.errstate(invalid="ignore"):
-        q = int(_quadrant(np.array([he]), np.array([par]), p, np.array([rpx]))[0])
+        q = int(_quadrant(np.array([he]), np.array([par]), p, np.array([rpx]),
+                          np.array([rot]), np.array([px]), np.array([_v(row, "kf_turn_px")]))[0])
+        still = bool(standing_still(np.array([par]), np.array([px]), np.array([rot]), p)[0])
+        turn = _v(row, "kf_turn_px")
+        turned = bool(turned_only(np.array([rpx]), np.array([turn]), p)[0])
     out += [f"degenerate > {p['he_degenerate']:g} (general 3D < 0.5); parallax split at "
             f"{p['parallax_split_deg']:g} deg (rotation < 0.1, plane 2-3)"]
     if "rot_fit_px" in p and not np.isnan(rpx):
@@ -656,8 +725,6 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                    + (": the views differ by a rotation only, whatever the accuracy of K"
                       if fits else ": a translation moved the points"))
     out.append(_QUADRANT_WORDS[q])
-    px = _v(row, "kf_parallax_med_px")
-    px = _v(row, "parallax_med_px") if np.isnan(px) else px
     floor = float(p.get("min_parallax_px", WEAK_HE_PARALLAX_PX))
     if q == 2 and px < floor:
         out.append(f"not read: the parallax is {px:.2g} px in the image, under {floor:.2g} px "
@@ -668,12 +735,22 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
         out.append(f"not read: entropy (keypoints or inliers, the lower) {_fmt(ent)} < "
                    f"{p['min_entropy']:g}, clustered features fit a homography whatever the "
                    "scene (feature_clustering look-alike)")
-    rot = _v(row, "kf_rot_deg")
-    rot = _v(row, "rot_deg") if np.isnan(rot) else rot
-    if q == 3 and "still_rotation_deg" in p and rot < p["still_rotation_deg"]:
-        out.append(f"standing still: rotation {rot:.2g} deg < {p['still_rotation_deg']:g} and no "
-                   "parallax either, so nothing can be triangulated (reported as pure_rotation: "
-                   "translation is unobservable; do not estimate t, do not create keyframes)")
+    if q == 3 and still:
+        out.append(f"standing still: rotation {rot:.2g} deg < {p['still_rotation_deg']:g} and the "
+                   f"points moved {px:.2g} px < {p['still_parallax_px']:g} px, within "
+                   "localisation noise, so nothing can be triangulated (reported as "
+                   "pure_rotation: translation is unobservable; do not estimate t, do not create "
+                   "keyframes)")
+        if not he > p["he_degenerate"]:
+            out.append(f"h_over_e {he:.3g} is not read when standing still: every static point "
+                       "is an inlier of any essential matrix with R = I, so E also takes points "
+                       "that move through the view and H/E falls with their share")
+    if q == 3 and turned and not still and not he > p["he_degenerate"]:
+        out.append(f"turned {turn:.3g} px in the image >= {p['rot_fit_turn_px']:g} px and a "
+                   f"rotation alone "
+                   f"explains the points ({rpx:.2g} px): h_over_e {he:.3g} is not read, since "
+                   "with no translation E takes every correct correspondence for any epipole, "
+                   "plus the mismatches along the one RANSAC picks")
     if q == 3:
         why = (f"parallax {par:.3g} deg < {p['parallax_split_deg']:g}"
                if par < p["parallax_split_deg"] else
@@ -856,14 +933,15 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
           {"want": "choice:pure_rotation|planar_degeneracy", "he_degenerate": _NUM,
            "parallax_split_deg": _NUM, "read_at": "choice:keyframe|frame",
            "min_entropy": _NUM, "min_parallax_px": _NUM, "still_rotation_deg": _NUM,
-           "rot_fit_px": _NUM},
+           "still_parallax_px": _NUM, "rot_fit_px": _NUM, "rot_fit_turn_px": _NUM},
           {"h_over_e": "max", "parallax_med_deg": "min"},
           {"he_degenerate": "h_over_e", "parallax_split_deg": "parallax_med_deg",
            "min_entropy": "entropy_norm", "min_parallax_px": "parallax_med_px",
-           "still_rotation_deg": "rot_deg", "rot_fit_px": "rot_only_px"},
+           "still_rotation_deg": "rot_deg", "still_parallax_px": "parallax_med_px",
+           "rot_fit_px": "rot_only_px", "rot_fit_turn_px": "rot_deg"},
           frame=_he_parallax, explain=_he_parallax_explain, context=_keyframe_read,
           optional=frozenset({"min_entropy", "min_parallax_px", "still_rotation_deg",
-                              "rot_fit_px"}),
+                              "still_parallax_px", "rot_fit_px", "rot_fit_turn_px"}),
           unread=_he_parallax_unread),
     Check("clustering", "low keypoint entropy with enough features, confirmed by the "
           "condition number of the pose information matrix",
