@@ -4,6 +4,7 @@
     python validation/score.py --split report       # the reported half (never tune on it)
     python validation/score.py --split all --json   # both halves, machine-readable
     python validation/score.py --data DIR --per-recording
+    python validation/score.py --overrides try.toml   # a threshold change, tried on dev
 
 Runs ``frontdiag analyze`` (the Python API, default rules) on every recording of the chosen
 half listed in ``validation/manifest.json`` and built by ``validation/build.py``, scores each
@@ -52,15 +53,18 @@ def recordings(manifest: dict[str, Any], split: str, data: Path) -> list[tuple[s
     return out
 
 
-def score_recording(path: Path, conditions: Sequence[str] = CAMERA_CONDITIONS) -> EvalReport:
-    """Analyse one built recording with the default rules and score it against its labels."""
+def score_recording(path: Path, conditions: Sequence[str] = CAMERA_CONDITIONS,
+                    overrides: Path | None = None) -> EvalReport:
+    """Analyse one built recording with the default rules (thresholds changed by an
+    ``overrides`` file, the format of ``frontdiag analyze --overrides``) and score it."""
     from frontdiag.api import analyze
 
     if not path.exists():
         raise ConfigError(f"recording not found: {path}",
                           hint="build the validation set first: python validation/build.py")
     labels = read_labels(labels_path_for(path))
-    frames = normalise_frames(analyze(path), source=str(path))
+    frames = normalise_frames(
+        analyze(path, rules_overrides=str(overrides) if overrides else None), source=str(path))
     return score(frames, labels, conditions=conditions)
 
 
@@ -76,6 +80,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--per-recording", action="store_true",
                     help="also print each recording's own table")
     ap.add_argument("--json", action="store_true", help="print JSON instead of tables")
+    ap.add_argument("--overrides", type=Path, default=None,
+                    help="a rule-overrides TOML (as for frontdiag analyze --overrides), to try "
+                         "a threshold on the dev half")
     a = ap.parse_args(argv)
     recs = recordings(load_manifest(a.manifest), a.split, a.data)
     if a.only:
@@ -88,7 +95,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     reports: dict[str, EvalReport] = {}
     for i, (name, path) in enumerate(recs, 1):
         print(f"[{i}/{len(recs)}] {name}", file=sys.stderr)
-        reports[name] = score_recording(path)
+        reports[name] = score_recording(path, overrides=a.overrides)
     pooled = pool(reports.values())
     if a.json:
         print(json.dumps({"split": a.split, "pooled": pooled.as_dict(),
