@@ -724,7 +724,11 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                    + (f" (best at {scale:.2g}x the given focal)" if not np.isnan(scale) else "")
                    + (": the views differ by a rotation only, whatever the accuracy of K"
                       if fits else ": a translation moved the points"))
-    out.append(_QUADRANT_WORDS[q])
+    if q == 3 and (still or turned) and not he > p["he_degenerate"]:
+        out.append("pure-rotation reading from the motion alone (H/E set aside, below): do not "
+                   "estimate t, do not triangulate")
+    else:
+        out.append(_QUADRANT_WORDS[q])
     floor = float(p.get("min_parallax_px", WEAK_HE_PARALLAX_PX))
     if q == 2 and px < floor:
         out.append(f"not read: the parallax is {px:.2g} px in the image, under {floor:.2g} px "
