@@ -35,7 +35,7 @@ SUMMARY_FILE = "fleet_summary.parquet"
 STAMP_FILE = "fleet.json"
 RECORDING_SUFFIXES = (".bag", ".mcap", ".db3")
 SUMMARY_COLUMNS = ["recording", "path", "status", "frames", "coverage", "ok", "warn", "fail",
-                   "episodes", "gate", "exit_code", "seconds", "error"]
+                   "no_pose", "episodes", "gate", "exit_code", "seconds", "error"]
 
 
 def is_recording(path: Path) -> bool:
@@ -195,8 +195,10 @@ def _analyse(task: Task) -> dict[str, Any]:
 
 
 def summarise(table: pd.DataFrame, manifest: dict[str, Any]) -> dict[str, Any]:
-    """Frames analysed, coverage (analysed / messages on the analysed topics) and frames per
-    verdict."""
+    """Frames analysed, coverage (analysed / messages on the analysed topics), frames per
+    verdict, and frames on which the frontend estimated no motion (``no_pose``)."""
+    from frontdiag.verdicts.gate import no_pose_rows
+
     counts = manifest.get("counts", {})
     messages = sum(c.get("messages", 0) for c in counts.values())
     analysed = sum(c.get("analysed", 0) for c in counts.values())
@@ -205,6 +207,7 @@ def summarise(table: pd.DataFrame, manifest: dict[str, Any]) -> dict[str, Any]:
     if "verdict" in table.columns:
         vc = table["verdict"].value_counts()
         row.update({k: int(vc.get(k, 0)) for k in ("ok", "warn", "fail")})
+    row["no_pose"] = int(no_pose_rows(table)[0].sum())
     return row
 
 

@@ -52,6 +52,9 @@ def test_fleet_cli_writes_a_folder_each_resumes_and_reports_the_bad_one(
         assert (out / name / "frames.parquet").exists()
         assert (out / name / "episodes.parquet").exists()
         assert by[name]["exit_code"] in (0, 1)
+        frames = pd.read_parquet(out / name / "frames.parquet")
+        lost = frames["status"].isin(["too_few_matches", "essential_failed", "no_features"])
+        assert by[name]["no_pose"] == int(lost.sum())
     summary = _summary(out)
     assert list(summary.columns) == SUMMARY_COLUMNS and len(summary) == 4
     # a second run skips the current results; a changed recording is analysed again

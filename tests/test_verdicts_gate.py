@@ -63,9 +63,40 @@ def test_max_fraction_gates_even_with_fail_on_never(failing) -> None:
 def test_parse_max_fraction() -> None:
     assert parse_max_fraction(["fail=0.02", "warn=0.1"]) == {"fail": 0.02, "warn": 0.1}
     assert parse_max_fraction(["fail=0.02,warn=0.5"]) == {"fail": 0.02, "warn": 0.5}
-    for bad in (["fail"], ["error=0.1"], ["fail=2"], ["fail=x"]):
+    assert parse_max_fraction(["nopose=0.05"]) == {"nopose": 0.05}
+    for bad in (["fail"], ["error=0.1"], ["fail=2"], ["fail=x"], ["nopose=-1"]):
         with pytest.raises(ConfigError):
             parse_max_fraction(bad)
+
+
+def _lost_track(ruleset):
+    """100 frames: the first has no pose by design, 12 lost track (too few matches, E failed),
+    and 3 of those also read too few keypoints (a detection failure names them)."""
+    t = frames(100, {range(40, 43): {"n_keypoints": 100}})
+    t["status"] = "ok"
+    t.loc[0, "status"] = "first_frame"
+    t.loc[30:38, "status"] = "too_few_matches"
+    t.loc[40:42, "status"] = "essential_failed"
+    return evaluate(t, ruleset)
+
+
+def test_frames_with_no_pose_are_counted_and_gated(ruleset) -> None:
+    res = _lost_track(ruleset)
+    assert gate(res, fail_on="never", max_fraction={"nopose": 0.15}).exit_code == 0
+    g = gate(res, fail_on="never", max_fraction={"nopose": 0.10})
+    assert g.exit_code == 1
+    assert g.reasons == ["max-fraction: no pose on 12.1% of 99 frames (too_few_matches 9, "
+                         "essential_failed 3) > 10.0%"]
+    buf = io.StringIO()
+    render_console_summary(Console(file=buf, width=400, color_system=None), res, g)
+    text = buf.getvalue()
+    assert "no pose on 12 of 99 frames (too_few_matches 9, essential_failed 3)" in text
+    assert "9 of them carry no condition" in text
+    # a run that never lost track says nothing about it
+    clean = evaluate(frames(50), ruleset)
+    buf = io.StringIO()
+    render_console_summary(Console(file=buf, width=400, color_system=None), clean, gate(clean))
+    assert "no pose" not in buf.getvalue()
 
 
 def test_episode_length_limit_from_run_toml(ruleset) -> None:

@@ -114,7 +114,9 @@ def analyze_cmd(
     fail_on: str = typer.Option("fail", "--fail-on", metavar="[warn|fail|never]",
                                 help="Exit 1 when a rule of this severity fires: warn, fail, never."),
     max_fraction: list[str] | None = typer.Option(
-        None, "--max-fraction", metavar="SEVERITY=SHARE", help="Run-level gate on the share of frames, e.g. fail=0.02."),
+        None, "--max-fraction", metavar="SEVERITY=SHARE", help="Run-level gate on the share of frames, e.g. fail=0.02 (verdicts "
+                                                       "at or above fail) or nopose=0.05 (frames "
+                                                       "the frontend estimated no motion on)."),
     baseline: Path | None = typer.Option(None, "--baseline",
                                          help="Earlier result dir of the same recording: exit 1 "
                                               "on regressions."),

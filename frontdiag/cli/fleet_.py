@@ -84,7 +84,7 @@ def render_summary(con: Any, rows: list[dict[str, Any]], path: Path) -> None:
     t = Table(title=f"fleet: {len(rows)} recordings", title_justify="left")
     for c, j in (("recording", "left"), ("status", "left"), ("frames", "right"),
                  ("coverage", "right"), ("ok", "right"), ("warn", "right"), ("fail", "right"),
-                 ("episodes", "right"), ("gate", "left"), ("s", "right")):
+                 ("no pose", "right"), ("episodes", "right"), ("gate", "left"), ("s", "right")):
         t.add_column(c, justify=j, min_width=len(c),  # type: ignore[arg-type]
                      overflow="fold")
     for r in rows:
@@ -94,7 +94,8 @@ def render_summary(con: Any, rows: list[dict[str, Any]], path: Path) -> None:
         gate = {"passed": "[green]passed[/]", "failed": "[red]failed[/]",
                 "incomplete": "[yellow]incomplete[/]"}.get(r["gate"], "")
         t.add_row(escape(r["recording"]), status, str(r["frames"]), cov, str(r["ok"]),
-                  str(r["warn"]), str(r["fail"]), str(r["episodes"]), gate,
+                  str(r["warn"]), str(r["fail"]),
+                  "" if r.get("no_pose") is None else str(r["no_pose"]), str(r["episodes"]), gate,
                   f"{r['seconds']:.1f}")
     con.print(t)
     errors = [r for r in rows if r["status"] == "error"]

@@ -38,6 +38,22 @@ def reanalyse_command(recording: str, episode: pd.Series | dict[str, Any],
             f"{topic_part} --out {shlex.quote(str(out))}")
 
 
+def no_pose_line(t: pd.DataFrame) -> str | None:
+    """How many rows the frontend estimated no motion on, and how many of those no rule names:
+    a verdict of ok there means no condition was recognised, not that the frame was fine."""
+    from frontdiag.verdicts.gate import no_pose_breakdown, no_pose_rows
+
+    lost, expected = no_pose_rows(t)
+    if not lost.any():
+        return None
+    unnamed = int((lost & (t["verdict"].astype(str) == "ok").to_numpy()).sum())
+    return (f"[yellow]no pose[/] on {int(lost.sum())} of {int(expected.sum())} frames "
+            f"({escape(no_pose_breakdown(t, lost))}): the frontend lost track there, and "
+            f"{unnamed} of them carry no condition (ok there means no cause was recognised). "
+            "`frontdiag explain RESULT --frame N` shows a frame's readings; "
+            "--max-fraction nopose=SHARE gates on it")
+
+
 def render_console_summary(console: Console, result: Verdicts, gate_result: GateResult,
                            reanalyse_cmd: Callable[[pd.Series], str] | None = None,
                            max_episodes: int = 10) -> None:
@@ -46,6 +62,9 @@ def render_console_summary(console: Console, result: Verdicts, gate_result: Gate
     counts = t["verdict"].value_counts()
     console.print(f"[bold]{len(t)} rows[/]: " + ", ".join(
         f"[{_STYLE[k]}]{int(counts.get(k, 0))} {k}[/]" for k in ("ok", "warn", "fail")))
+    line = no_pose_line(t)
+    if line:
+        console.print(line, highlight=False)
     cond = {k: v for k, v in condition_counts(result).items() if v["frames"]}
     if cond:
         table = Table("condition", "frames", "share", "episodes", box=None, pad_edge=False)

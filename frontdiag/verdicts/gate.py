@@ -41,8 +41,35 @@ class GateResult:
         return self.exit_code == EXIT_OK
 
 
+# Row statuses where the frontend estimated no motion: it lost track on that frame, whatever the
+# rules name as the cause. The first frame of a sensor and a camera without intrinsics (whose
+# pose is not computed by design) are not counted either way.
+NO_POSE_STATUSES = frozenset({"too_few_matches", "essential_failed", "no_features",
+                              "too_few_points", "low_overlap"})
+NOT_POSED_BY_DESIGN = frozenset({"first_frame", "first_scan", "no_intrinsics"})
+FRACTION_KEYS = ("warn", "fail", "nopose")
+
+
+def no_pose_rows(table: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """(rows with no pose, rows where a pose was expected), from the ``status`` column; a
+    frontend error on a row (``error: ...``) counts as no pose."""
+    if "status" not in table or table.empty:
+        none = np.zeros(len(table), dtype=bool)
+        return none, ~none
+    status = table["status"].astype(str)
+    lost = (status.isin(NO_POSE_STATUSES) | status.str.startswith("error")).to_numpy()
+    return lost, ~status.isin(NOT_POSED_BY_DESIGN).to_numpy()
+
+
+def no_pose_breakdown(table: pd.DataFrame, lost: np.ndarray) -> str:
+    """``too_few_matches 13, essential_failed 2`` for the rows with no pose."""
+    counts = table["status"].astype(str)[lost].value_counts()
+    return ", ".join(f"{k} {int(v)}" for k, v in counts.items())
+
+
 def parse_max_fraction(items: list[str] | None) -> dict[str, float]:
-    """`fail=0.02` style options (repeatable or comma-separated) -> {severity: share}."""
+    """`fail=0.02` style options (repeatable or comma-separated) -> {key: share}; the keys are
+    a severity (share of rows at or above it) or ``nopose`` (share of rows with no pose)."""
     out: dict[str, float] = {}
     for item in items or []:
         for part in item.split(","):
@@ -54,9 +81,10 @@ def parse_max_fraction(items: list[str] | None) -> dict[str, float]:
                 share = float(value)
             except ValueError:
                 share = -1.0
-            if not sep or key not in ("warn", "fail") or not 0 <= share <= 1:
-                raise ConfigError(f"--max-fraction {part!r}: expected warn=SHARE or fail=SHARE "
-                                  "with SHARE between 0 and 1 (e.g. fail=0.02)")
+            if not sep or key not in FRACTION_KEYS or not 0 <= share <= 1:
+                raise ConfigError(f"--max-fraction {part!r}: expected warn=SHARE, fail=SHARE or "
+                                  "nopose=SHARE with SHARE between 0 and 1 (e.g. fail=0.02, "
+                                  "nopose=0.05)")
             out[key] = share
     return out
 
@@ -92,6 +120,14 @@ def _fraction_reasons(result: Verdicts, limits: dict[str, float]) -> list[str]:
     rank = result.table["verdict"].map(SEVERITY_RANK).to_numpy()
     out = []
     for sev, limit in sorted(limits.items()):
+        if sev == "nopose":
+            lost, expected = no_pose_rows(result.table)
+            m = int(expected.sum())
+            share = float(lost.sum()) / m if m else 0.0
+            if share > limit:
+                out.append(f"max-fraction: no pose on {share:.1%} of {m} frames "
+                           f"({no_pose_breakdown(result.table, lost)}) > {limit:.1%}")
+            continue
         share = float((rank >= SEVERITY_RANK[sev]).sum()) / n
         if share > limit:
             out.append(f"max-fraction: {share:.1%} of {n} frames at or above {sev} "
