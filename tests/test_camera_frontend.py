@@ -241,6 +241,21 @@ def _wall_walk(n: int) -> list[np.ndarray]:
             for k in range(n)]
 
 
+def _turned_upper_halves(rows: list[dict], line_px: float) -> list[int]:
+    """Row indices of the upper half by parallax of every keyframe interval whose median
+    rotation there moves the image at least ``line_px`` (f tan(rotation)), from the rows."""
+    out = []
+    for ref in sorted({r["ref_frame"] for r in rows if r["ref_frame"] >= 0}):
+        group = [i for i, r in enumerate(rows)
+                 if r["ref_frame"] == ref and r["h_over_e"] == r["h_over_e"]]
+        split = np.median([rows[i]["parallax_med_deg"] for i in group])
+        upper = [i for i in group if rows[i]["parallax_med_deg"] >= split]
+        turn = np.median([K[0, 0] * math.tan(math.radians(rows[i]["rot_deg"])) for i in upper])
+        if turn >= line_px:
+            out += upper
+    return sorted(out)
+
+
 def test_the_rotation_fit_is_taken_where_it_can_change_the_quadrant() -> None:
     # a wall under translation reads the planar quadrant (H/E > 0.9, parallax >= 0.3 deg): the
     # rotation-only fit is taken there. A short sideways step in front of a plane is nearly a
@@ -267,7 +282,8 @@ def test_the_rotation_fit_is_taken_where_it_can_change_the_quadrant() -> None:
     assert all(r["h_over_e"] < 0.9 for r in turning[2:]), [r["h_over_e"] for r in turning]
     fitted = [r for r in turning if r["rot_only_px"] == r["rot_only_px"]]
     assert len(fitted) >= 3, [r["rot_deg"] for r in turning]
-    assert all(r["rot_deg"] >= 1.5 for r in fitted), [r["rot_deg"] for r in fitted]
+    assert [i for i, r in enumerate(turning) if r["rot_only_px"] == r["rot_only_px"]] == \
+        _turned_upper_halves(turning, 10.0)
     assert all(r["rot_only_px"] > 2.45 for r in fitted), [r["rot_only_px"] for r in fitted]
     # taken on every frame (the three lines at 0), the same frames get the same values
     all_lines_0 = CameraParams(rot_fit_he=0.0, rot_fit_parallax_deg=0.0, rot_fit_turn_px=0.0)
