@@ -99,6 +99,18 @@ def test_frames_with_no_pose_are_counted_and_gated(ruleset) -> None:
     assert "no pose" not in buf.getvalue()
 
 
+def test_the_html_summary_counts_the_frames_with_no_pose(ruleset, tmp_path) -> None:
+    from frontdiag.report.html import ReportInputs, RunData, _summary_html
+
+    res = _lost_track(ruleset)
+    page = _summary_html(ReportInputs(RunData(tmp_path, res.table, {}, res, ruleset)))
+    assert "no pose on 12 of 99 frames (too_few_matches 9, essential_failed 3)" in page
+    assert "9 of them carry no condition" in page
+    clean = evaluate(frames(50), ruleset)
+    assert "no pose" not in _summary_html(ReportInputs(RunData(tmp_path, clean.table, {}, clean,
+                                                               ruleset)))
+
+
 def test_episode_length_limit_from_run_toml(ruleset) -> None:
     lidar = frames(100, {range(10, 80): {"lidar_eig_min": 12.0, "lidar_cond": 1500.0}},
                    sensor="lidar", rate_hz=10)
