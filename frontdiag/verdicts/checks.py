@@ -942,7 +942,7 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
           {"he_degenerate": "h_over_e", "parallax_split_deg": "parallax_med_deg",
            "min_entropy": "entropy_norm", "min_parallax_px": "parallax_med_px",
            "still_rotation_deg": "rot_deg", "still_parallax_px": "parallax_med_px",
-           "rot_fit_px": "rot_only_px", "rot_fit_turn_px": "rot_deg"},
+           "rot_fit_px": "rot_only_px"},
           frame=_he_parallax, explain=_he_parallax_explain, context=_keyframe_read,
           optional=frozenset({"min_entropy", "min_parallax_px", "still_rotation_deg",
                               "still_parallax_px", "rot_fit_px", "rot_fit_turn_px"}),
