@@ -64,10 +64,20 @@ class RunFindingDoc(_Doc):
     frames: list[int]
 
 
+class NoPoseDoc(_Doc):
+    frames: int = Field(description="rows on which the frontend estimated no motion")
+    expected: int = Field(description="rows where a pose was expected (not a sensor's first "
+                                      "frame, not a camera without intrinsics)")
+    unnamed: int = Field(description="of the rows with no pose, those with verdict ok: no rule "
+                                     "named a cause")
+    statuses: dict[str, int] = Field(description="the rows with no pose by status")
+
+
 class VerdictsDoc(_Doc):
     frontdiag: str
     frames: int
     verdicts: dict[Literal["ok", "warn", "fail"], int]
+    no_pose: NoPoseDoc
     gate: Gate
     conditions: dict[str, ConditionCount]
     rules: list[RuleCount]

@@ -92,6 +92,9 @@ def test_frames_with_no_pose_are_counted_and_gated(ruleset) -> None:
     text = buf.getvalue()
     assert "no pose on 12 of 99 frames (too_few_matches 9, essential_failed 3)" in text
     assert "9 of them carry no condition" in text
+    assert to_json(res, g)["no_pose"] == {"frames": 12, "expected": 99, "unnamed": 9,
+                                          "statuses": {"too_few_matches": 9,
+                                                       "essential_failed": 3}}
     # a run that never lost track says nothing about it
     clean = evaluate(frames(50), ruleset)
     buf = io.StringIO()
