@@ -221,3 +221,15 @@ def test_calibration_spread_is_kept_and_a_noisy_one_is_called_unreliable(tmp_pat
     assert any(n.startswith("UNRELIABLE (calibration)") and "voxel_ns_per_point ×3.5" in n
                for n in rep.notes)
     assert render.measured_grids(rep)[0].title.startswith("UNRELIABLE ESTIMATE")
+
+
+def test_explain_states_what_matching_did_on_a_frame_with_no_pose() -> None:
+    from frontdiag.cli.explain import matching_facts
+
+    row = {"n_keypoints": 1000, "ratio_reject_rate": 0.98, "ratio_ambiguous_rate": 0.03,
+           "n_matches": 13}
+    assert matching_facts(row, 1.0) == (
+        "1000 keypoints; the ratio test refused 98% (3% with two close candidates, 95% with "
+        "none close); 13 matches kept; the previous frame is 1 s earlier")
+    # what is missing is left out, not printed as nan
+    assert matching_facts({"n_keypoints": 4, "n_matches": float("nan")}, None) == "4 keypoints"

@@ -19,6 +19,8 @@ STATUS_MEANING = {
     "no_intrinsics": "no camera intrinsics, so E, parallax and pose information were skipped",
     "essential_failed": "the essential-matrix estimate failed on this frame",
     "too_few_points": "too few points in the scan to register it",
+    "low_overlap": "too small a share of the scan's points matched the map to trust the "
+                   "registration",
 }
 """What each frontend status says about a row (the verdict is the rules' finding, separately)."""
 
@@ -27,6 +29,32 @@ def status_meaning(status: str) -> str:
     if status.startswith("error"):
         return "the frontend raised an error on this row; its metrics are empty"
     return STATUS_MEANING.get(status, "see the status column in docs")
+
+
+def matching_facts(row: Any, gap_s: float | None) -> str:
+    """What matching did on a camera row that got no pose: keypoints, the ratio test's refusals
+    (with two close candidates, or with none close), the matches kept, and the time since the
+    previous frame; facts only, the rules name causes."""
+    def num(name: str) -> float:
+        try:
+            return float(row.get(name))
+        except (TypeError, ValueError):
+            return float("nan")
+
+    n, rej, amb, kept = (num(c) for c in ("n_keypoints", "ratio_reject_rate",
+                                          "ratio_ambiguous_rate", "n_matches"))
+    parts = []
+    if n == n:
+        parts.append(f"{n:.0f} keypoints")
+    if rej == rej:
+        close = (f" ({amb:.0%} with two close candidates, {rej - amb:.0%} with none close)"
+                 if amb == amb else "")
+        parts.append(f"the ratio test refused {rej:.0%}{close}")
+    if kept == kept:
+        parts.append(f"{kept:.0f} matches kept")
+    if gap_s is not None and gap_s == gap_s:
+        parts.append(f"the previous frame is {gap_s:.3g} s earlier")
+    return "; ".join(parts)
 
 
 def _load_rules(result_dir: Path, rules_dir: Path | None, overrides: Path | None) -> Any:
@@ -208,9 +236,17 @@ def build_explanation(result_dir: Path, frame: int | None, t: float | None,
         metrics.append({"name": name, "value": _plain(row[name]), "unit": m.unit,
                         "thresholds": thresholds.get(name, [])})
     status = str(row.get("status", ""))
+    meaning = status_meaning(status)
+    if sensor == "camera" and status in ("too_few_matches", "essential_failed"):
+        gap = None
+        if "t_rel_s" in same:
+            earlier = same["t_rel_s"][same["frame"] < row["frame"]]
+            gap = float(row["t_rel_s"]) - float(earlier.max()) if len(earlier) else None
+        facts = matching_facts(row, gap)
+        meaning += f" ({facts})" if facts else ""
     return {"result": str(result_dir), "frame": int(row["frame"]), "sensor": sensor,
             "topic": row_topic, "t_rel_s": _plain(row.get("t_rel_s")), "status": status,
-            "status_meaning": status_meaning(status), "verdict": str(row["verdict"]),
+            "status_meaning": meaning, "verdict": str(row["verdict"]),
             "conditions": list(row["conditions"]),
             "frame_range": {"first": int(same["frame"].min()), "last": int(same["frame"].max())},
             "rules": rules_out, "metrics": metrics}
