@@ -197,7 +197,7 @@ def _analyse(task: Task) -> dict[str, Any]:
 def summarise(table: pd.DataFrame, manifest: dict[str, Any]) -> dict[str, Any]:
     """Frames analysed, coverage (analysed / messages on the analysed topics), frames per
     verdict, and frames on which the frontend estimated no motion (``no_pose``)."""
-    from frontdiag.verdicts.gate import no_pose_rows
+    from frontdiag.verdicts.gate import no_pose
 
     counts = manifest.get("counts", {})
     messages = sum(c.get("messages", 0) for c in counts.values())
@@ -207,7 +207,7 @@ def summarise(table: pd.DataFrame, manifest: dict[str, Any]) -> dict[str, Any]:
     if "verdict" in table.columns:
         vc = table["verdict"].value_counts()
         row.update({k: int(vc.get(k, 0)) for k in ("ok", "warn", "fail")})
-    row["no_pose"] = int(no_pose_rows(table)[0].sum())
+    row["no_pose"] = no_pose(table).frames
     return row
 
 

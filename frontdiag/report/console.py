@@ -41,15 +41,14 @@ def reanalyse_command(recording: str, episode: pd.Series | dict[str, Any],
 def no_pose_line(t: pd.DataFrame) -> str | None:
     """How many rows the frontend estimated no motion on, and how many of those no rule names:
     a verdict of ok there means no condition was recognised, not that the frame was fine."""
-    from frontdiag.verdicts.gate import no_pose_breakdown, no_pose_rows
+    from frontdiag.verdicts.gate import no_pose
 
-    lost, expected = no_pose_rows(t)
-    if not lost.any():
+    lost = no_pose(t)
+    if not lost.frames:
         return None
-    unnamed = int((lost & (t["verdict"].astype(str) == "ok").to_numpy()).sum())
-    return (f"[yellow]no pose[/] on {int(lost.sum())} of {int(expected.sum())} frames "
-            f"({escape(no_pose_breakdown(t, lost))}): the frontend lost track there, and "
-            f"{unnamed} of them carry no condition (ok there means no cause was recognised). "
+    return (f"[yellow]no pose[/] on {lost.frames} of {lost.expected} frames "
+            f"({escape(lost.breakdown)}): the frontend lost track there, and "
+            f"{lost.unnamed} of them carry no condition (ok there means no cause was recognised). "
             "`frontdiag explain RESULT --frame N` shows a frame's readings; "
             "--max-fraction nopose=SHARE gates on it")
 

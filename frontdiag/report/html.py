@@ -220,7 +220,7 @@ def _fmt(v: Any) -> str:
 
 def _summary_html(inp: ReportInputs) -> str:
     from frontdiag.report.json_ import condition_counts
-    from frontdiag.verdicts.gate import no_pose_breakdown, no_pose_rows
+    from frontdiag.verdicts.gate import no_pose
 
     run = inp.run
     t = run.table
@@ -233,12 +233,10 @@ def _summary_html(inp: ReportInputs) -> str:
         pills = "".join(f"<span class='pill {k}'>{int(counts.get(k, 0))} {k}</span>"
                         for k in ("ok", "warn", "fail"))
         topics = ", ".join(sorted(set(rows["topic"].astype(str))))
-        lost, expected = no_pose_rows(rows)
-        unnamed = int((lost & (rows["verdict"].astype(str) == "ok").to_numpy()).sum())
-        nopose = (f"<br><span class='meta'>no pose on {int(lost.sum())} of "
-                  f"{int(expected.sum())} frames ({_e(no_pose_breakdown(rows, lost))}): the "
-                  f"frontend lost track there; {unnamed} of them carry no condition</span>"
-                  if lost.any() else "")
+        lost = no_pose(rows)
+        nopose = (f"<br><span class='meta'>no pose on {lost.frames} of {lost.expected} frames "
+                  f"({_e(lost.breakdown)}): the frontend lost track there; {lost.unnamed} of "
+                  "them carry no condition</span>" if lost.frames else "")
         parts.append(f"<p><b>{sensor}</b> <span class='meta'>{_e(topics)}, {len(rows)} rows"
                      f"</span><br>{pills}{nopose}</p>")
     conds = {k: v for k, v in condition_counts(run.verdicts).items() if v["frames"]}

@@ -50,21 +50,15 @@ def condition_counts(result: Verdicts) -> dict[str, dict[str, Any]]:
 
 def to_json(result: Verdicts, gate_result: GateResult) -> dict[str, Any]:
     """Everything a CI job needs, as plain JSON types."""
-    from frontdiag.verdicts.gate import no_pose_rows
+    from frontdiag.verdicts.gate import no_pose
 
     t = result.table
     verdicts = t["verdict"].value_counts()
-    lost, expected = no_pose_rows(t)
-    statuses: dict[str, int] = ({str(k): int(v) for k, v in
-                                 t["status"].astype(str)[lost].value_counts().items()}
-                                if lost.any() else {})
     return plain({
         "frontdiag": __version__,
         "frames": len(t),
         "verdicts": {k: int(verdicts.get(k, 0)) for k in ("ok", "warn", "fail")},
-        "no_pose": {"frames": int(lost.sum()), "expected": int(expected.sum()),
-                    "unnamed": int((lost & (t["verdict"].astype(str) == "ok").to_numpy()).sum()),
-                    "statuses": statuses},
+        "no_pose": no_pose(t).as_dict(),
         "gate": {"exit_code": gate_result.exit_code, "passed": gate_result.passed,
                  "fail_on": gate_result.fail_on, "reasons": gate_result.reasons,
                  "incomplete": gate_result.incomplete},

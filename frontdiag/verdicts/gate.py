@@ -20,7 +20,7 @@ from frontdiag.errors import EXIT_GATE, EXIT_OK, ConfigError
 from frontdiag.metrics import METRICS
 from frontdiag.verdicts.checks import col
 from frontdiag.verdicts.engine import Verdicts, evaluate
-from frontdiag.verdicts.model import SEVERITY_RANK
+from frontdiag.verdicts.model import FRACTION_KEYS, SEVERITY_RANK
 
 FailOn = Literal["warn", "fail", "never"]
 
@@ -47,7 +47,6 @@ class GateResult:
 NO_POSE_STATUSES = frozenset({"too_few_matches", "essential_failed", "no_features",
                               "too_few_points", "low_overlap"})
 NOT_POSED_BY_DESIGN = frozenset({"first_frame", "first_scan", "no_intrinsics"})
-FRACTION_KEYS = ("warn", "fail", "nopose")
 
 
 def no_pose_rows(table: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
@@ -61,10 +60,39 @@ def no_pose_rows(table: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
     return lost, ~status.isin(NOT_POSED_BY_DESIGN).to_numpy()
 
 
-def no_pose_breakdown(table: pd.DataFrame, lost: np.ndarray) -> str:
-    """``too_few_matches 13, essential_failed 2`` for the rows with no pose."""
+@dataclass(frozen=True)
+class NoPose:
+    """The rows on which the frontend estimated no motion, as every report states them."""
+
+    frames: int
+    expected: int  # rows where a pose was expected
+    unnamed: int  # of ``frames``, those with verdict ok: no rule named a cause
+    statuses: dict[str, int]  # ``frames`` by status, most frequent first
+
+    @property
+    def share(self) -> float:
+        return self.frames / self.expected if self.expected else 0.0
+
+    @property
+    def breakdown(self) -> str:
+        """``too_few_matches 13, essential_failed 2``."""
+        return ", ".join(f"{k} {v}" for k, v in self.statuses.items())
+
+    def as_dict(self) -> dict[str, Any]:
+        return {"frames": self.frames, "expected": self.expected, "unnamed": self.unnamed,
+                "statuses": dict(self.statuses)}
+
+
+def no_pose(table: pd.DataFrame) -> NoPose:
+    """Count the rows with no pose (:func:`no_pose_rows`) of a table with verdicts."""
+    lost, expected = no_pose_rows(table)
+    if not lost.any():
+        return NoPose(0, int(expected.sum()), 0, {})
     counts = table["status"].astype(str)[lost].value_counts()
-    return ", ".join(f"{k} {int(v)}" for k, v in counts.items())
+    unnamed = lost & (table["verdict"].astype(str) == "ok").to_numpy() \
+        if "verdict" in table else lost
+    return NoPose(int(lost.sum()), int(expected.sum()), int(unnamed.sum()),
+                  {str(k): int(v) for k, v in counts.items()})
 
 
 def parse_max_fraction(items: list[str] | None) -> dict[str, float]:
@@ -121,12 +149,10 @@ def _fraction_reasons(result: Verdicts, limits: dict[str, float]) -> list[str]:
     out = []
     for sev, limit in sorted(limits.items()):
         if sev == "nopose":
-            lost, expected = no_pose_rows(result.table)
-            m = int(expected.sum())
-            share = float(lost.sum()) / m if m else 0.0
-            if share > limit:
-                out.append(f"max-fraction: no pose on {share:.1%} of {m} frames "
-                           f"({no_pose_breakdown(result.table, lost)}) > {limit:.1%}")
+            lost = no_pose(result.table)
+            if lost.share > limit:
+                out.append(f"max-fraction: no pose on {lost.share:.1%} of {lost.expected} "
+                           f"frames ({lost.breakdown}) > {limit:.1%}")
             continue
         share = float((rank >= SEVERITY_RANK[sev]).sum()) / n
         if share > limit:

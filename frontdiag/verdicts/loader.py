@@ -22,7 +22,7 @@ from frontdiag.conditions import CONDITION_SENSORS, CONDITIONS
 from frontdiag.errors import ConfigError, RuleError
 from frontdiag.metrics import METRICS
 from frontdiag.verdicts.checks import CHECKS
-from frontdiag.verdicts.model import Rule, RunConfig
+from frontdiag.verdicts.model import FRACTION_KEYS, Rule, RunConfig
 from frontdiag.verdicts.operators import check_value
 
 log = logging.getLogger(__name__)
@@ -149,8 +149,8 @@ def semantic_problems(rule: Rule) -> list[str]:
 def _run_problems(run: RunConfig) -> list[str]:
     out = [f"run.episode_limits: unknown condition {k!r}"
            for k in run.episode_limits if k not in CONDITIONS]
-    out += [f"run.max_fraction: key {k!r} must be warn, fail or nopose"
-            for k in run.max_fraction if k not in ("warn", "fail", "nopose")]
+    out += [f"run.max_fraction: key {k!r} must be one of {', '.join(FRACTION_KEYS)}"
+            for k in run.max_fraction if k not in FRACTION_KEYS]
     out += [f"run.baseline: unknown metric {k!r}"
             for k in run.baseline.metric_median_rel_tol if k not in METRICS]
     return out

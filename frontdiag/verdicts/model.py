@@ -13,6 +13,8 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 Severity = Literal["warn", "fail"]
 SEVERITY_RANK: dict[str, int] = {"ok": 0, "warn": 1, "fail": 2}
+FRACTION_KEYS = ("warn", "fail", "nopose")
+"""Keys of --max-fraction and [run.max_fraction]: a severity, or the share of rows with no pose."""
 
 ParamValue = int | float | str | list[float]
 
