@@ -302,3 +302,30 @@ def test_solve_from_the_chordal_start_reaches_the_lower_minimum() -> None:
     _, from_chordal = solve(g, every, chordal_init(g, every, chain))
     assert from_chain["cost"] > 1e5
     assert from_chordal["cost"] < 300
+
+
+def test_cli_no_map_and_calibrate_reach_the_audit(tmp_path: Path, capsys) -> None:
+    """--no-map stops after the chain and pair tests (the pairs refute the long 3 m lie here);
+    --calibrate rescales the covariances and says so; the manifest records both."""
+    import json
+
+    spec = [(k, 40 + k, 0.0) for k in range(0, 40, 2)] + [(3, 75, 0.0)]
+    path = _square_graph(tmp_path / "sq.g2o", spec)
+    text = path.read_text().splitlines()
+    parts = text[-1].split()
+    parts[3] = str(float(parts[3]) + 3.0)
+    text[-1] = " ".join(parts)
+    path.write_text("\n".join(text) + "\n")
+    assert main(["loops", str(path), "--out", str(tmp_path / "a"), "--quiet"]) == 1
+    assert main(["loops", str(path), "--out", str(tmp_path / "b"), "--quiet", "--no-map"]) == 1
+    with_map = pd.read_parquet(tmp_path / "a" / "loops.parquet").set_index("i")
+    without = pd.read_parquet(tmp_path / "b" / "loops.parquet").set_index("i")
+    assert "map_chi2" in with_map.columns and "map_chi2" not in without.columns
+    assert without.loc[3, "verdict"] == "fail" and without.loc[3, "rule"] == "FD-LOP-002"
+    assert (without.drop(index=3)["verdict"] == "ok").all()
+    manifest = json.loads((tmp_path / "b" / "manifest.json").read_text())
+    assert manifest["options"]["map_test"] is False and manifest["options"]["calibrate"] is False
+    capsys.readouterr()
+    assert main(["loops", str(path), "--calibrate", "--json", "--no-map"]) in (0, 1)
+    payload = json.loads(capsys.readouterr().out)
+    assert any("covariances scaled by" in n for n in payload["notes"])

@@ -35,6 +35,8 @@ Examples:
 
   frontdiag loops run.g2o --optimize                 # solve with and without flagged loops
 
+  frontdiag loops run.g2o --calibrate                # covariances scaled by the short cycles
+
 
 Exit codes: 0 nothing at or above --fail-on, 1 a loop at or above --fail-on, 2 bad input /
 usage / config, 3 internal error.
@@ -63,6 +65,10 @@ def loops_cmd(
                                        help="Explain one loop: its number or I-J vertex ids."),
     no_map: bool = typer.Option(False, "--no-map",
                                 help="Skip the re-test against the optimised map (FD-LOP-003)."),
+    calibrate: bool = typer.Option(False, "--calibrate",
+                                   help="Scale the file's covariances by what the short cycles "
+                                        "of neighbouring loops show (when the file's "
+                                        "information is known to be off by a factor)."),
     optimize: bool = typer.Option(False, "--optimize",
                                   help="Solve with and without the flagged loops; report each "
                                        "flagged loop's residual before/after and the ATE."),
@@ -97,7 +103,8 @@ def loops_cmd(
             if status is not None:
                 status.update(msg)
 
-        result = audit(graph, rules, odom_max_gap=odom_max_gap, progress=progress)
+        result = audit(graph, rules, odom_max_gap=odom_max_gap, verify=not no_map,
+                       calibrate=calibrate, progress=progress)
     if explain is not None:
         from frontdiag.loops.explain import explain_loop, pick_loop
 
@@ -119,7 +126,8 @@ def loops_cmd(
         write_manifest(out_dir, {"command": "loops", "input": {"path": str(graph_file)},
                                  "options": {"sqrt_info": sqrt_info, "layout": layout,
                                              "odom_max_gap": odom_max_gap,
-                                             "map_test": not no_map},
+                                             "map_test": not no_map,
+                                             "calibrate": calibrate},
                                  "rules": rules.model_dump(mode="json"),
                                  "summary": summ, "optimize": opt})
     if junit is not None:

@@ -159,8 +159,8 @@ def audit(graph: PoseGraph, rules: LoopRules | None = None, *, odom_max_gap: int
     result.calibration = calibration
     if calibration != 1.0:
         result.notes.append(f"covariances scaled by {calibration:.3g} (the median χ² of the "
-                            "pairwise cycles over its expected value; --no-calibrate keeps the "
-                            "file's)")
+                            "pairwise cycles over its expected value; without --calibrate the "
+                            "file's stand)")
     _finish(result, verdict, rule, reason)
     if verify and n:
         from frontdiag.loops.verify import verify_against_map
