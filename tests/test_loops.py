@@ -85,6 +85,30 @@ def test_toro_read_as_g2o_is_refused_naming_the_edge(tmp_path: Path, capsys) -> 
     assert "--layout toro" in err
 
 
+@pytest.mark.parametrize("text, message", [
+    ("EDGE_SE2 0 1 1 0 nan 1 0 0 1 0 1\n", "line 1: edge 0->1: measurement 1 0 nan is not finite"),
+    ("EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 inf 0 0 1 0 0 1 0 1\n",
+     "line 2: edge 1->2: measurement inf 0 0 is not finite"),
+    ("EDGE_SE2 0 1 1 0 0 1 0 0 nan 0 1\n", "line 1: edge 0->1: information matrix is not finite"),
+    ("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 nan 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n",
+     "line 2: vertex 1: estimate is not finite"),
+    ("EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 nan " + " ".join(["1", "0", "0", "0", "0", "0", "1", "0", "0",
+                                                     "0", "0", "1", "0", "0", "0", "1", "0",
+                                                     "0", "1", "0", "1"]) + "\n",
+     "line 1: edge 0->1: measurement 1 0 0 0 0 0 nan is not finite"),
+])
+def test_non_finite_values_are_refused_naming_the_line(tmp_path: Path, capsys, text: str,
+                                                       message: str) -> None:
+    """A NaN or inf in a measurement, an information block or a vertex estimate: one line
+    naming the file and the line, exit 2 (it used to reach the solver: exit 3)."""
+    (tmp_path / "n.g2o").write_text(text)
+    with pytest.raises(GraphError, match=message):
+        read_graph(tmp_path / "n.g2o")
+    assert main(["loops", str(tmp_path / "n.g2o"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "n.g2o: " + message in err and "Traceback" not in err
+
+
 def test_sqrt_information_is_squared(tmp_path: Path) -> None:
     (tmp_path / "s.g2o").write_text("EDGE_SE2 0 1 1 0 0 10 0 0 10 0 20\n")
     g = read_graph(tmp_path / "s.g2o", sqrt_info=True)

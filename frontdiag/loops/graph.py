@@ -130,6 +130,7 @@ def read_graph(path: Path | str, *, sqrt_info: bool = False,
     dim = 0
     vid: list[int] = []
     vrows: list[list[float]] = []
+    vline: list[int] = []
     e_ij: list[tuple[int, int]] = []
     e_rows: list[list[float]] = []
     e_line: list[int] = []
@@ -151,6 +152,7 @@ def read_graph(path: Path | str, *, sqrt_info: bool = False,
             if tag in _VERTEX:
                 need = 5 if d == 2 else 9
                 vid.append(int(tok[1]))
+                vline.append(lineno)
                 vrows.append([float(x) for x in tok[2:need]])
                 if len(vrows[-1]) != need - 2:
                     raise ValueError("too few values")
@@ -173,6 +175,20 @@ def read_graph(path: Path | str, *, sqrt_info: bool = False,
     rows = np.asarray(e_rows, dtype=float)
     lines = np.asarray(e_line, dtype=np.int64)
     k = lie.tangent_dim(dim)
+    n_meas = 3 if dim == 2 else 7
+    bad_meas = np.flatnonzero(~np.all(np.isfinite(rows[:, :n_meas]), axis=1))
+    if bad_meas.size:
+        e = bad_meas[0]
+        raise GraphError(path, f"line {lines[e]}: edge {ij[e, 0]}->{ij[e, 1]}: measurement "
+                               f"{' '.join(f'{v:g}' for v in rows[e, :n_meas])} is not finite "
+                               f"({bad_meas.size} such edge(s))",
+                         hint="fix or drop the edge; a NaN pose cannot be tested")
+    if vrows:
+        V_all = np.asarray(vrows, dtype=float)
+        bad_v = np.flatnonzero(~np.all(np.isfinite(V_all), axis=1))
+        if bad_v.size:
+            raise GraphError(path, f"line {vline[bad_v[0]]}: vertex {vid[bad_v[0]]}: estimate is "
+                                   f"not finite ({bad_v.size} such vertex line(s))")
     if dim == 2:
         Z = lie.se2(rows[:, 0], rows[:, 1], rows[:, 2])
         toro = np.asarray(e_toro) if layout == "auto" else np.full(len(e_toro), layout == "toro")
@@ -223,6 +239,11 @@ def read_graph(path: Path | str, *, sqrt_info: bool = False,
 
 def _check_pd(path: Path, info: F, ij: I64, lines: I64, toro_hint: bool) -> None:
     sym_ok = np.all(np.isfinite(info), axis=(1, 2))
+    if not sym_ok.all():
+        e = int(np.flatnonzero(~sym_ok)[0])
+        raise GraphError(path, f"line {lines[e]}: edge {ij[e, 0]}->{ij[e, 1]}: information matrix "
+                               f"is not finite ({int((~sym_ok).sum())} such edge(s))",
+                         hint="fix or drop the edge's information block")
     eig = np.full((info.shape[0], info.shape[1]), -1.0)
     eig[sym_ok] = np.linalg.eigvalsh(info[sym_ok])
     bad = np.flatnonzero(eig[:, 0] <= 0)
