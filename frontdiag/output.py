@@ -113,14 +113,16 @@ def refuse_overwrite(out: Path, force: bool) -> None:
                           hint="pass --force to replace it, or choose another --out directory")
 
 
-def check_output_file(path: Path, option: str, inputs: list[Path]) -> Path:
-    """Check that a single output file (``--junit``) can be written and is not an input."""
+def check_output_file(path: Path, option: str, inputs: list[Path],
+                      what: str = "recording") -> Path:
+    """Check that a single output file (``--junit``) can be written and is not an input
+    (``what`` names the kind of input in the message)."""
     path = Path(path)
     inp = _inside(path, inputs)
     if inp is not None:
-        raise OutputError(path, f"{option} would overwrite the input recording {inp}"
+        raise OutputError(path, f"{option} would overwrite the input {what} {inp}"
                           if path.resolve() == inp.resolve() else
-                          f"{option} would write inside the input recording {inp}",
+                          f"{option} would write inside the input {what} {inp}",
                           hint="choose another file name")
     if path.is_dir():
         raise OutputError(path, f"{option}: is a folder, not a file", hint="name a file")

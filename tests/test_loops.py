@@ -202,6 +202,20 @@ def test_cli_outputs_and_exit_codes(tmp_path: Path, capsys) -> None:
     assert payload["optimize"]["ate_m"] > 0.1
 
 
+def test_cli_junit_path_is_checked_before_the_audit(tmp_path: Path, capsys) -> None:
+    """--junit naming a folder or the input graph: one line, exit 2, before any work; a
+    missing parent folder is created."""
+    gpath = _square_graph(tmp_path / "sq.g2o", [(5, 45, 0.0), (7, 47, 4.0)])
+    assert main(["loops", str(gpath), "--junit", str(tmp_path), "--quiet"]) == 2
+    assert "--junit: is a folder, not a file" in capsys.readouterr().err
+    before = gpath.read_bytes()
+    assert main(["loops", str(gpath), "--junit", str(gpath), "--quiet"]) == 2
+    assert "would overwrite the input graph" in capsys.readouterr().err
+    assert gpath.read_bytes() == before
+    assert main(["loops", str(gpath), "--junit", str(tmp_path / "ci" / "j.xml"), "--quiet"]) == 1
+    assert 'failures="1"' in (tmp_path / "ci" / "j.xml").read_text()
+
+
 def test_optimiser_hides_the_lie_as_the_fold_fraction_predicts(tmp_path: Path) -> None:
     """Solved with the false loop in, its residual is 3 (1 - f) = 0.6 mm: the map moved."""
     from frontdiag.loops import lie

@@ -85,15 +85,15 @@ def loops_cmd(
     from frontdiag.loops import audit, read_graph, summary
     from frontdiag.loops.report import gate_loops, render_loops, write_loops_junit
     from frontdiag.loops.rules import load_loop_rules
-    from frontdiag.output import prepare_out_dir, write_manifest
+    from frontdiag.output import check_output_file, guarded_write, prepare_out_dir, write_manifest
 
     if fail_on not in ("warn", "fail", "never"):
         raise ConfigError(f"--fail-on {fail_on!r}: choose warn, fail or never")
     if odom_max_gap < 1:
         raise ConfigError(f"--odom-max-gap {odom_max_gap}: need at least 1")
     out_dir = prepare_out_dir(out, [graph_file]) if out is not None else None
-    if junit is not None and junit.resolve() == graph_file.resolve():
-        raise ConfigError(f"--junit {junit}: would overwrite the input graph")
+    if junit is not None:
+        check_output_file(junit, "--junit", [graph_file], what="graph")
     rules = load_loop_rules(rules_file)
     err = make_console(stderr=True)
     show = not quiet and not as_json
@@ -131,7 +131,7 @@ def loops_cmd(
                                  "rules": rules.model_dump(mode="json"),
                                  "summary": summ, "optimize": opt})
     if junit is not None:
-        write_loops_junit(junit, result, gate_result)
+        guarded_write(junit, lambda: write_loops_junit(junit, result, gate_result))
     if as_json:
         from frontdiag.report.json_ import plain
 
