@@ -367,3 +367,12 @@ def test_cli_no_map_and_calibrate_reach_the_audit(tmp_path: Path, capsys) -> Non
     assert main(["loops", str(path), "--calibrate", "--json", "--no-map"]) in (0, 1)
     payload = json.loads(capsys.readouterr().out)
     assert any("covariances scaled by" in n for n in payload["notes"])
+
+
+def test_explain_on_a_graph_without_loops_says_so(tmp_path: Path, capsys) -> None:
+    (tmp_path / "odo.g2o").write_text("EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n"
+                                      "EDGE_SE2 1 2 1 0 0 1 0 0 1 0 1\n")
+    assert main(["loops", str(tmp_path / "odo.g2o"), "--explain", "0"]) == 2
+    assert "has no loop closures to explain" in capsys.readouterr().err
+    assert main(["loops", str(tmp_path / "odo.g2o")]) == 0
+    assert "0 loops; 0 pairs tested, 0 conflicts" in capsys.readouterr().out

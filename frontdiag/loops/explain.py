@@ -13,6 +13,9 @@ def pick_loop(result: LoopAudit, key: str) -> int:
     """Row of the loop named by its number or by ``I-J`` vertex ids (either order)."""
     t = result.table
     key = key.strip()
+    if len(t) == 0:
+        raise ConfigError(f"--explain {key}: the graph has no loop closures to explain (every "
+                          "edge is odometry; see --odom-max-gap)")
     if "-" in key.lstrip("-"):
         left, _, right = key.partition("-")
         try:

@@ -62,14 +62,18 @@ def _fmt(v: Any, spec: str) -> str:
     return format(v, spec)
 
 
+def _n(count: int, noun: str) -> str:
+    return f"{count} {noun}{'' if count == 1 else 's'}"
+
+
 def render_loops(console: Console, result: LoopAudit, summ: dict[str, Any], gate: GateResult,
                  out_dir: Path | None, opt: dict[str, Any] | None, top: int) -> None:
     g = result.graph
     v = summ["verdicts"]
     console.print(f"[bold]frontdiag loops[/] {escape(g.path)}  [dim]SE({g.dim}), "
                   f"{g.n_vertices} poses, {int(result.odometry.sum())} odometry, "
-                  f"{len(result.table)} loops; {result.n_pairs} pairs tested, "
-                  f"{result.n_conflicts} conflicts; {summ['timings_s'].get('total_s', 0):.2f} s[/]")
+                  f"{_n(len(result.table), 'loop')}; {_n(result.n_pairs, 'pair')} tested, "
+                  f"{_n(result.n_conflicts, 'conflict')}; {summ['timings_s'].get('total_s', 0):.2f} s[/]")
     console.print(", ".join(f"[{_STYLE[k]}]{v[k]} {k}[/]" for k in ("ok", "warn", "fail")))
     for r in result.rules.rule:
         n = summ["rules"].get(r.id, 0)
