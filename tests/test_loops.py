@@ -376,3 +376,29 @@ def test_explain_on_a_graph_without_loops_says_so(tmp_path: Path, capsys) -> Non
     assert "has no loop closures to explain" in capsys.readouterr().err
     assert main(["loops", str(tmp_path / "odo.g2o")]) == 0
     assert "0 loops; 0 pairs tested, 0 conflicts" in capsys.readouterr().out
+
+
+def test_a_loop_left_out_when_the_rounds_stop_is_not_called_too_loose_to_test(
+        tmp_path: Path) -> None:
+    """With max_rounds 0 the first map is the only one: loops outside it that pass against it
+    with power are not verified, and the reason says the rounds stopped, not that the map was
+    too loose (it printed "uncertain to 0.05 m (> 2 m)")."""
+    from frontdiag.loops.rules import default_loop_rules_file, load_loop_rules
+
+    text = default_loop_rules_file().read_text()
+    for old, new in (("fold_m = { value = 0.5,", "fold_m = { value = 1.05,"),
+                     ("max_rounds = { value = 8,", "max_rounds = { value = 0,")):
+        assert old in text
+        text = text.replace(old, new)
+    (tmp_path / "rules.toml").write_text(text)
+    rng = np.random.default_rng(5)
+    spec = [(k, 40 + k, float(rng.normal(0, 0.03))) for k in range(0, 40, 2)] + [(3, 75, 0.0)]
+    t = audit(read_graph(_square_graph(tmp_path / "sq.g2o", spec)),
+              load_loop_rules(tmp_path / "rules.toml")).table
+    out = t[~t["in_map"]]
+    assert len(out) >= 1 and (out["map_sigma_m"] <= 2.0).all()
+    assert (out["verdict"] == "warn").all()
+    for r in out["reason"]:
+        assert "the rounds stopped after 1 (max_rounds 0) before it joined the map" in r
+        assert "too loose" not in r
+    assert (t.loc[t["in_map"], "verdict"] == "ok").all()

@@ -135,7 +135,9 @@ def verify_against_map(result: LoopAudit) -> None:
     P = result.chain.P.copy()
     res: dict[str, F] = {}
     rounds = 0
-    for rounds in range(1, int(r3.param("max_rounds")) + 2):
+    max_rounds = int(r3.param("max_rounds"))
+    was_in = in_map.copy()  # in the map in some round
+    for rounds in range(1, max_rounds + 2):
         edges = result.odometry.copy()
         edges[loops[in_map]] = True
         if rounds == 1:
@@ -154,9 +156,10 @@ def verify_against_map(result: LoopAudit) -> None:
         # a few fold_m (5.5 σ at p = 1e-6); a passing loop already in the map stays
         nxt = (res["p"] >= p_alarm) & (in_map | (res["map_sigma_m"] <= power_m)) \
             & ~(chain_refused & ~_stiffer(res, chain_sigma, overrule))
-        if np.array_equal(nxt, in_map) or rounds > int(r3.param("max_rounds")):
+        if np.array_equal(nxt, in_map) or rounds > max_rounds:
             break
         in_map = nxt
+        was_in |= in_map
     result.map_poses = P
     t["map_residual_m"] = res["residual_m"]
     t["map_residual_deg"] = res["residual_deg"]
@@ -188,15 +191,25 @@ def verify_against_map(result: LoopAudit) -> None:
             else:
                 reason[i] = f"{reason[i]}; also {m}"
         elif not in_map[i]:
-            # passed, but never with power: the map is not stiff enough between its poses
+            # passed, but not admitted: never with power, or the rounds stopped first
             if verdict[i] != "ok":
                 reason[i] = f"was {rule[i]} ({reason[i]}); "
             else:
                 reason[i] = ""
             verdict[i], rule[i] = r4.severity, r4.id
-            reason[i] += (f"not verified: the map between its poses is uncertain to "
-                          f"{res['map_sigma_m'][i]:.2f} m (> {power_m:g} m), too loose to refute "
-                          f"a lie; {m}")
+            sig = res["map_sigma_m"][i]
+            if not sig <= power_m:
+                reason[i] += (f"not verified: the map between its poses is uncertain to "
+                              f"{sig:.2f} m (> {power_m:g} m), too loose to refute a lie; {m}")
+            elif was_in[i]:
+                reason[i] += (f"not verified: borderline, it was in the map of an earlier "
+                              f"round and left it, and passes against the last map (σ "
+                              f"{sig:.2f} m); the rounds stopped after {rounds} with it "
+                              f"outside; {m}")
+            else:
+                reason[i] += (f"not verified: it passes against the last map with power "
+                              f"(σ {sig:.2f} m <= {power_m:g} m), but the rounds stopped after "
+                              f"{rounds} (max_rounds {max_rounds}) before it joined the map; {m}")
         elif verdict[i] != "ok":
             reason[i] = f"was {rule[i]} ({reason[i]}); agrees with the map: {m}"
             verdict[i], rule[i] = "ok", ""
