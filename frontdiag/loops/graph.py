@@ -183,9 +183,9 @@ def read_graph(path: Path | str, *, sqrt_info: bool = False,
                                f"{' '.join(f'{v:g}' for v in rows[e, :n_meas])} is not finite "
                                f"({bad_meas.size} such edge(s))",
                          hint="fix or drop the edge; a NaN pose cannot be tested")
+    V = np.asarray(vrows, dtype=float) if vrows else np.zeros((0, 3))
     if vrows:
-        V_all = np.asarray(vrows, dtype=float)
-        bad_v = np.flatnonzero(~np.all(np.isfinite(V_all), axis=1))
+        bad_v = np.flatnonzero(~np.all(np.isfinite(V), axis=1))
         if bad_v.size:
             raise GraphError(path, f"line {vline[bad_v[0]]}: vertex {vid[bad_v[0]]}: estimate is "
                                    f"not finite ({bad_v.size} such vertex line(s))")
@@ -227,7 +227,6 @@ def read_graph(path: Path | str, *, sqrt_info: bool = False,
         src[f], dst[f] = dst[f], src[f].copy()
     initial = None
     if vid:
-        V = np.asarray(vrows, dtype=float)
         P = lie.se2(V[:, 0], V[:, 1], V[:, 2]) if dim == 2 else lie.se3(
             V[:, :3], V[:, 3:7] / np.linalg.norm(V[:, 3:7], axis=1, keepdims=True))
         initial = np.tile(np.eye(dim + 1), (ids.shape[0], 1, 1))
