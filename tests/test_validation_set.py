@@ -230,3 +230,22 @@ def test_build_checks_the_output_directory_before_reading_sources(tmp_path: Path
     with pytest.raises(ConfigError, match="cannot write to --out"):
         build.main(["--src", str(tmp_path / "nowhere"), "--out", str(blocker / "out"),
                     "--manifest", str(m)])
+
+
+@pytest.mark.parametrize("gain", [0.8, 1.0, 1.17])
+def test_label_aid_reads_the_gain_between_two_views(gain: float) -> None:
+    """The exposure labels' aid reads the brightness ratio of the same surfaces: a textured
+    view whose two halves move by different shifts (two depths, so that a fundamental matrix
+    is defined), scaled by a known gain, reads that gain."""
+    from validation import label_aid
+
+    rng = np.random.default_rng(3)
+    base = cv2.GaussianBlur(rng.uniform(0, 1, (480, 640)).astype(np.float32), (0, 0), 2.0)
+    base = 40 + 160 * (base - base.min()) / (base.max() - base.min())
+    a = np.clip(base, 0, 255).astype(np.uint8)
+    shifted = np.vstack([np.roll(base, (5, 9), axis=(0, 1))[:240],
+                         np.roll(base, (5, 2), axis=(0, 1))[240:]])
+    b = np.clip(shifted * gain, 0, 255).astype(np.uint8)
+    ratio, n = label_aid.pair_ratio(a, b)
+    assert n >= 30
+    assert ratio == pytest.approx(gain, abs=0.02)
