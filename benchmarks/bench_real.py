@@ -425,7 +425,8 @@ def _print_jobs(r: dict[str, Any]) -> None:
           f"{r['speedup'] / r['machine_speedup']:.0%} of what this machine gives two processes")
     print(f"   CPU seconds: --jobs 1 {r['cpu_main_jobs1']:.1f}; --jobs 2 busiest worker "
           f"{r['cpu_worker_jobs2']:.1f} + main {r['cpu_main_jobs2']:.1f}; CPU-time speed-up "
-          f"(median of the rounds) {r['cpu_speedup']:.2f}x (the wall-clock speed-up of an otherwise idle machine); "
+          f"(median of the rounds) {r['cpu_speedup']:.2f}x (blind to other work on the machine, "
+          "not to its clock: a CPU second is longer with both cores busy); "
           f"at {r['frames'] / (r['cpu_worker_jobs2'] + r['cpu_main_jobs2']):.1f} frames per "
           "CPU-second of the critical path on 2 cores")
 
@@ -436,8 +437,8 @@ def _print_fleet(r: dict[str, Any]) -> None:
           f"{r['summary_equal_jobs']}); Dask LocalCluster (2 workers) {r['wall_dask']:.1f} s, "
           f"summary equal to the local one: {r['summary_equal_dask']}")
     print(f"   CPU seconds: --jobs 1 {r['cpu_main_jobs1']:.1f}; --jobs 2 busiest worker "
-          f"{r['cpu_worker_jobs2']:.1f} + main {r['cpu_main_jobs2']:.1f}; CPU-time speed-up "
-          f"(median of the rounds) {r['cpu_speedup']:.2f}x")
+          f"{r['cpu_worker_jobs2']:.1f} + main {r['cpu_main_jobs2']:.1f}: CPU-time speed-up "
+          f"{r['cpu_speedup']:.2f}x")
 
 
 def _print_rss(r: dict[str, Any]) -> None:
