@@ -40,6 +40,7 @@ LOGS = (
     Log("label_bank.bag", "label_bank", "bag", 4.0),
     Log("repetitive_aisle", "repetitive_aisle", "db3", 3.0),
     Log("planar_approach.mcap", "planar_approach", "mcap", 3.0),
+    Log("side_wall.mcap", "side_wall", "mcap", 3.0),
     Log("dock_door.bag", "dock_door", "bag", 4.0),
     Log("dock_corridor.mcap", "dock_corridor", "mcap", 3.0, lidar=True),
     Log("parked_panning", "parked_panning", "db3", 4.0),

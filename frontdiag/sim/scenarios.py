@@ -333,6 +333,20 @@ def _planar(seconds: float) -> list[Part]:
                  auto_exposure=False, name="flat shelf face")]
 
 
+def _side_wall(seconds: float) -> list[Part]:
+    """A side-looking camera passing the flat wall of cartons at 3 m: a plane under sideways
+    translation, whose image motion is nearly a pure shift (what a rotation-only model gives
+    at a very long focal), unlike the approach, whose image expands."""
+    d, v = 3.0, 0.8
+    y0 = -v * seconds / 2
+
+    def slide(t: float) -> Pose:  # driving along +y, camera head turned to the wall (+x)
+        return (16.0 - d, y0 + v * t, np.pi / 2, -np.pi / 2)
+
+    return [Part(face_room("cartons"), [Segment(seconds, slide, camera="planar_degeneracy")],
+                 auto_exposure=False, name="flat wall, side camera")]
+
+
 def _blank_wall(seconds: float) -> list[Part]:
     v = min(0.4, 2.0 / max(seconds, 1e-3))
     return [Part(face_room("blank"),
@@ -410,6 +424,9 @@ SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
     Scenario("planar_approach", "driving straight at a flat wall of cartons that fills the view",
              "planar_degeneracy: every match on one plane (H explains them as well as E)",
              8.0, _planar),
+    Scenario("side_wall", "a side-looking camera passing a flat wall of cartons at 3 m",
+             "planar_degeneracy: every match on one plane, the camera sliding sideways past it",
+             8.0, _side_wall),
     Scenario("dock_door", "a stocked aisle towards an open dock door with daylight beyond",
              "exposure_step: auto-exposure steps the gain as the door grows; healthy between",
              12.0, _dock_door),
