@@ -331,6 +331,29 @@ def test_a_turn_explained_by_rotation_is_rotation_whatever_h_over_e(ruleset, he,
     assert not want or any("rotation alone explains" in ln for ln in lines)
 
 
+@pytest.mark.parametrize(("he", "rot", "scale", "want"), [
+    (0.7, 20.0, 1.1, ["pure_rotation"]),   # a turn through a K 10 % off: a rotation
+    (0.7, 20.0, 2.0, []),                  # best at the longest focal searched: not a turn
+    (0.7, 20.0, 0.5, []),                  # or at the shortest
+    (0.97, 0.05, 1.1, ["pure_rotation"]),  # H/E high, and a rotation fits inside the range
+    (0.97, 0.05, 2.0, ["planar_degeneracy"]),  # ...or at its edge: the plane stays a plane
+])
+def test_a_rotation_fit_counts_only_with_its_focal_inside_the_range(ruleset, he, rot, scale,
+                                                                     want) -> None:
+    """As the focal grows, x' ~ K R K^-1 x tends to a pure image shift, which is what a camera
+    sliding sideways past a flat surface sees: a fit that climbs to the end of the focal range
+    is that slide, not a turn through an approximate K."""
+    row = {"h_over_e": he, "parallax_med_deg": 6.0, "parallax_med_px": 50.0, "rot_deg": rot,
+           "rot_only_px": 1.2, "rot_focal_scale": scale}
+    res = evaluate(frames(20, {range(5, 15): row}), ruleset)
+    assert conds(res, 10) == want
+    if scale in (0.5, 2.0):
+        from frontdiag.verdicts.explain import explain_row
+
+        lines = next(e for e in explain_row(res, 10) if e.rule.id == "FD-ROT-001").check_lines
+        assert any("the end of the 0.5-2x range searched" in ln for ln in lines)
+
+
 def _keyframe_intervals(he_first: float, he_last: float, n: int = 40) -> pd.DataFrame:
     """Intervals of 4 frames per reference keyframe, parallax growing 0.5 -> 1.4 deg in each."""
     changes = {}

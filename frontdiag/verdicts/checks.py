@@ -553,6 +553,27 @@ def standing_still(par: np.ndarray, par_px: np.ndarray, rot: np.ndarray, p: Para
                 & (rot < p["still_rotation_deg"]))
 
 
+def _bracketed_rotation_fit(df: pd.DataFrame, p: Params) -> np.ndarray:
+    """``rot_only_px``, NaN where its focal scale sits at an end of the search range (rules
+    with rot_fit_focal_min / rot_fit_focal_max).
+
+    A rotation-only fit that wants a focal outside the range is not a rotation seen through an
+    approximate K: as the focal grows the model x' ~ K R K^-1 x tends to a pure shift of the
+    image, which is what a camera sliding sideways past a flat surface sees, so such a fit
+    climbs to the longest focal allowed and fits there (a simulated side camera passing a
+    wall of cartons at 3 m fits within 0.5-1.4 px at 2x, every frame). Only a minimum inside
+    the range says the views differ by a rotation.
+    """
+    rot_px = col(df, "rot_only_px")
+    if "rot_fit_focal_min" not in p or "rot_fit_focal_max" not in p:
+        return rot_px
+    scale = col(df, "rot_focal_scale")
+    with np.errstate(invalid="ignore"):
+        edge = ((scale <= p["rot_fit_focal_min"] * (1 + 1e-6))
+                | (scale >= p["rot_fit_focal_max"] * (1 - 1e-6)))
+    return np.where(edge, np.nan, rot_px)
+
+
 def _keyframe_read(df: pd.DataFrame, p: Params) -> pd.DataFrame:
     """H/E and parallax as read where each row's reference keyframe saw the most parallax.
 
@@ -568,7 +589,7 @@ def _keyframe_read(df: pd.DataFrame, p: Params) -> pd.DataFrame:
     """
     he, par = col(df, "h_over_e"), col(df, "parallax_med_deg")
     par_px, rot = col(df, "parallax_med_px"), col(df, "rot_deg")
-    rot_px = col(df, "rot_only_px")
+    rot_px = _bracketed_rotation_fit(df, p)
     ref = col(df, "ref_frame")
     with np.errstate(invalid="ignore", divide="ignore"):
         # the frontend's parallax_med_px is f tan(parallax_med_deg): the same focal turns the
@@ -716,6 +737,15 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
         turned = bool(turned_only(np.array([rpx]), np.array([turn]), p)[0])
     out += [f"degenerate > {p['he_degenerate']:g} (general 3D < 0.5); parallax split at "
             f"{p['parallax_split_deg']:g} deg (rotation < 0.1, plane 2-3)"]
+    raw_rpx, raw_scale = _v(row, "rot_only_px"), _v(row, "rot_focal_scale")
+    if ("rot_fit_px" in p and np.isnan(rpx) and not np.isnan(raw_rpx)
+            and "rot_fit_focal_max" in p and "rot_fit_focal_min" in p
+            and not p["rot_fit_focal_min"] * (1 + 1e-6) < raw_scale
+            < p["rot_fit_focal_max"] * (1 - 1e-6)):
+        out.append(f"rotation-only model: best at {raw_scale:.2g}x the given focal, the end of "
+                   f"the {p['rot_fit_focal_min']:g}-{p['rot_fit_focal_max']:g}x range searched "
+                   f"({raw_rpx:.2g} px there), so not read as a rotation: a camera sliding "
+                   "sideways past a flat surface fits a rotation better the longer the focal")
     if "rot_fit_px" in p and not np.isnan(rpx):
         fits = rpx <= p["rot_fit_px"]
         scale = _v(row, "rot_focal_scale")
@@ -937,15 +967,18 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
           {"want": "choice:pure_rotation|planar_degeneracy", "he_degenerate": _NUM,
            "parallax_split_deg": _NUM, "read_at": "choice:keyframe|frame",
            "min_entropy": _NUM, "min_parallax_px": _NUM, "still_rotation_deg": _NUM,
-           "still_parallax_px": _NUM, "rot_fit_px": _NUM, "rot_fit_turn_px": _NUM},
+           "still_parallax_px": _NUM, "rot_fit_px": _NUM, "rot_fit_turn_px": _NUM,
+           "rot_fit_focal_min": _NUM, "rot_fit_focal_max": _NUM},
           {"h_over_e": "max", "parallax_med_deg": "min"},
           {"he_degenerate": "h_over_e", "parallax_split_deg": "parallax_med_deg",
            "min_entropy": "entropy_norm", "min_parallax_px": "parallax_med_px",
            "still_rotation_deg": "rot_deg", "still_parallax_px": "parallax_med_px",
-           "rot_fit_px": "rot_only_px"},
+           "rot_fit_px": "rot_only_px", "rot_fit_focal_min": "rot_focal_scale",
+           "rot_fit_focal_max": "rot_focal_scale"},
           frame=_he_parallax, explain=_he_parallax_explain, context=_keyframe_read,
           optional=frozenset({"min_entropy", "min_parallax_px", "still_rotation_deg",
-                              "still_parallax_px", "rot_fit_px", "rot_fit_turn_px"}),
+                              "still_parallax_px", "rot_fit_px", "rot_fit_turn_px",
+                              "rot_fit_focal_min", "rot_fit_focal_max"}),
           unread=_he_parallax_unread),
     Check("clustering", "low keypoint entropy with enough features, confirmed by the "
           "condition number of the pose information matrix",
