@@ -149,6 +149,9 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
     _M("brightness_ratio", "ratio", "camera",
        "median over tracked features of mean(8x8 patch now) / mean(patch in the previous frame): "
        "how much brighter the same surfaces are; 1.0 unchanged, 1.2 a 20% gain step"),
+    _M("brightness_ratio_se", "log ratio", "camera",
+       "standard error of log(brightness_ratio): sqrt(pi/2) x 1.4826 MAD of the patches' log "
+       "ratios / sqrt(patches); 0.01 means the ratio is known to about 1%", "lower"),
     # --- timing
     _M("ms_decode", "ms", "any", "decode + grey conversion", "lower"),
     _M("ms_detect", "ms", "camera", "ORB detection + description with bucketing", "lower"),

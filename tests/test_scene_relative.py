@@ -178,6 +178,47 @@ def test_a_brightness_ratio_step_between_photographs_is_an_exposure_step(ruleset
     assert any("not trusted" in ln for ln in lines)
 
 
+def test_the_brightness_ratio_carries_the_standard_error_of_its_median() -> None:
+    """A uniform gain scales every patch alike: the log ratios barely scatter and the median is
+    known to a fraction of a percent. Surfaces that change brightness each their own way (a
+    glossy surface seen from elsewhere) scatter: the error grows with the scatter and falls as
+    one over the square root of the patches."""
+    from frontdiag.camera.photometric import photometric
+
+    rng = np.random.default_rng(5)
+    img = cv2.GaussianBlur(rng.uniform(40, 160, (240, 320)).astype(np.float32), (0, 0), 3)
+    xy = np.column_stack([rng.uniform(20, 300, 200), rng.uniform(20, 220, 200)])
+    gain = photometric(img.astype(np.uint8), np.clip(img * 1.2, 0, 255).astype(np.uint8),
+                       xy, xy)
+    assert gain.brightness_ratio == pytest.approx(1.2, abs=0.02)
+    assert gain.brightness_ratio_se < 0.005
+    # every 24x24 block its own brightness change, log-normal with sigma 0.15 around 0.93
+    blocks = np.exp(rng.normal(np.log(0.93), 0.15, (10, 14)))
+    field = cv2.resize(blocks, (320, 240), interpolation=cv2.INTER_NEAREST).astype(np.float32)
+    uneven = np.clip(img * field, 0, 255).astype(np.uint8)
+    many = photometric(img.astype(np.uint8), uneven, xy, xy)
+    few = photometric(img.astype(np.uint8), uneven, xy[:50], xy[:50])
+    assert 0.005 < many.brightness_ratio_se < few.brightness_ratio_se
+    # sqrt(pi/2) x sigma / sqrt(n): about 0.013 for 200 patches at sigma 0.15
+    assert many.brightness_ratio_se == pytest.approx(1.2533 * 0.15 / np.sqrt(200), rel=0.35)
+
+
+def test_a_ratio_past_the_line_by_less_than_its_own_scatter_is_not_a_step(ruleset) -> None:
+    """6.7 % darker from patches scattered by a standard error of 1.2 % (a glossy print seen
+    from elsewhere) does not clear the 6.7 % line by two errors; the same ratio known to 0.2 %
+    does, and so does an 18 % step with the same scatter."""
+    base = {"photo_residual_med": 18.0, "ratio_reject_rate": 0.8, "d_mean_intensity": -3.0,
+            "inlier_ratio": 0.9, "brightness_ratio": 1.0, "brightness_ratio_se": 0.01}
+    change = {i: dict(base) for i in range(1, 6)}
+    change[2] = {**base, "brightness_ratio": 0.93, "brightness_ratio_se": 0.012}
+    change[3] = {**base, "brightness_ratio": 0.93, "brightness_ratio_se": 0.002}
+    change[4] = {**base, "brightness_ratio": 0.82, "brightness_ratio_se": 0.012}
+    res = evaluate(frames(6, change, rate_hz=1.0), ruleset)
+    assert hits(res, "exposure_step").tolist() == [False, False, False, True, True, False]
+    lines = next(e for e in explain_row(res, 2) if e.rule.id == "FD-EXP-001").check_lines
+    assert any("uncertain to 1.2%" in ln for ln in lines)
+
+
 # --- rotation without trusting K ----------------------------------------------------------------
 
 def _scene(n: int, seed: int, depth: tuple[float, float] = (2.0, 8.0)) -> np.ndarray:

@@ -166,7 +166,7 @@ def _row_template() -> dict[str, Any]:
         "parallax_med_px_2kf": NAN,
         "mean_intensity": NAN, "d_mean_intensity": NAN, "photo_residual_med": NAN,
         "affine_gain": NAN, "affine_bias": NAN, "photo_residual_affine_med": NAN,
-        "brightness_ratio": NAN, "keyframe_reason": "", "ms_detect": 0.0, "ms_match": 0.0, "ms_geometry": 0.0,
+        "brightness_ratio": NAN, "brightness_ratio_se": NAN, "keyframe_reason": "", "ms_detect": 0.0, "ms_match": 0.0, "ms_geometry": 0.0,
         "ms_photometric": 0.0, "ms_diagnostic": 0.0, "ms_total": 0.0, "status": "ok",
     }
 
@@ -446,7 +446,8 @@ class CameraFrontend:
         ph = photometric(prev.gray, cur.gray, prev.feats.xy[t], cur.feats.xy[q])
         row.update(photo_residual_med=ph.residual_med, affine_gain=ph.gain,
                    affine_bias=ph.bias, photo_residual_affine_med=ph.residual_affine_med,
-                   brightness_ratio=ph.brightness_ratio)
+                   brightness_ratio=ph.brightness_ratio,
+                   brightness_ratio_se=ph.brightness_ratio_se)
 
     def _keyframe_reason(self, lost: bool, kf: _Keyframe, row: dict[str, Any]) -> str:
         p = self.params

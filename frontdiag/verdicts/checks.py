@@ -10,6 +10,7 @@ the whole table and return one finding.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -368,8 +369,16 @@ def _ratio_step(df: pd.DataFrame, p: Params) -> np.ndarray:
     r = col(df, "brightness_ratio")
     w = col(df, "inlier_ratio")
     with np.errstate(invalid="ignore", divide="ignore"):
-        step = np.abs(np.log(r)) >= np.log(p["ratio_step"])
+        step = np.abs(np.log(r)) - _ratio_margin(df, p) >= np.log(p["ratio_step"])
         return step & (w > p.get("ratio_min_inliers", 0.5))
+
+
+def _ratio_margin(df: pd.DataFrame, p: Params) -> np.ndarray:
+    """How far (in log) the brightness ratio must clear the step line: ratio_sigmas standard
+    errors of its own median (``brightness_ratio_se``; 0 where it is not in the table)."""
+    if "ratio_sigmas" not in p:
+        return np.zeros(len(df))
+    return p["ratio_sigmas"] * np.nan_to_num(col(df, "brightness_ratio_se"), nan=0.0)
 
 
 def _exposure_step(df: pd.DataFrame, p: Params) -> np.ndarray:
@@ -425,14 +434,20 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
         line = p["ratio_step"]
         beyond = ratio >= line or ratio <= 1 / line
         trusted = not np.isnan(w) and w > p.get("ratio_min_inliers", 0.5)
+        se = _v(row, "brightness_ratio_se")
+        k = float(p.get("ratio_sigmas", 0.0))
+        clears = abs(math.log(ratio)) - k * (0.0 if np.isnan(se) else se) >= math.log(line)
         out.append(f"brightness_ratio {ratio:.3f}: the same surfaces "
                    f"{abs(ratio - 1) * 100:.0f}% {'brighter' if ratio >= 1 else 'darker'} than "
                    f"in the previous frame, vs the step line {line:g} (or {1 / line:.3f})"
                    + ("" if not beyond else
-                      ": a brightness step" if trusted else
                       f", but only {w:.0%} of the correspondences are verified (needs > "
                       f"{p.get('ratio_min_inliers', 0.5):.0%}): the median patch ratio is not "
-                      "trusted"))
+                      "trusted" if not trusted else
+                      ": a brightness step" if clears else
+                      f", but the patches scatter: the median is uncertain to "
+                      f"{se * 100:.1f}% (standard error) and must clear the line by {k:g} of "
+                      "those, so the surfaces may not have changed at all"))
     if _v(row, "dark_step") == 1.0:
         out.append(f"|d_mean_intensity| {abs(dm):.1f} > {p['dmean_dark']:g}, into or out of a "
                    "view where detection fails: a step into darkness or back, whatever "
@@ -947,18 +962,18 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
            "residual_affine_max": _NUM, "reject_exposure": _NUM, "reject_max": _NUM,
            "recovery_frames": _NUM, "dmean_dark": _NUM, "fill_floor": _NUM,
            "baseline_sigmas": _NUM, "ratio_step": _NUM, "ratio_min_inliers": _NUM,
-           **_BASELINE_PARAMS},
+           "ratio_sigmas": _NUM, **_BASELINE_PARAMS},
           {"d_mean_intensity": "absmax", "photo_residual_med": "max", "affine_gain": "absdev1",
            "brightness_ratio": "absdev1"},
           {"dmean_step": "d_mean_intensity", "residual_step": "photo_residual_med",
            "reject_exposure": "ratio_reject_rate", "reject_max": "ratio_reject_rate",
            "residual_affine_max": "photo_residual_affine_med", "dmean_dark": "d_mean_intensity",
            "fill_floor": "keypoint_fill", "ratio_step": "brightness_ratio",
-           "ratio_min_inliers": "inlier_ratio"},
+           "ratio_min_inliers": "inlier_ratio", "ratio_sigmas": "brightness_ratio_se"},
           frame=_exposure_step, explain=_exposure_explain, context=_exposure_context,
           optional=frozenset({"residual_affine_max", "dmean_dark", "fill_floor",
                               "baseline_sigmas", "ratio_step", "ratio_min_inliers",
-                              *_BASELINE_PARAMS}),
+                              "ratio_sigmas", *_BASELINE_PARAMS}),
           baseline=_exposure_baseline),
     Check("he_parallax_quadrant", "H/E inlier ratio x median parallax separates pure "
           "rotation, a planar scene, a nearly stationary camera and healthy motion",
