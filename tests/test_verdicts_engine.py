@@ -351,7 +351,28 @@ def test_a_rotation_fit_counts_only_with_its_focal_inside_the_range(ruleset, he,
         from frontdiag.verdicts.explain import explain_row
 
         lines = next(e for e in explain_row(res, 10) if e.rule.id == "FD-ROT-001").check_lines
-        assert any("the end of the 0.5-2x range searched" in ln for ln in lines)
+        assert any("an end of the 0.5-2x focal range searched" in ln for ln in lines)
+
+
+def test_fits_at_the_edge_of_the_focal_range_outvote_a_lone_fit_inside_it(ruleset) -> None:
+    """Over a keyframe interval the fit is read as the median over its higher-parallax frames.
+    A fit at the end of the range counts against a rotation, not as a missing reading: on the
+    simulator's side wall at 320x240 one frame of an interval found its best focal at 1.59x and
+    three at 2x, and the lone fit inside the range used to decide the interval."""
+    changes = {}
+    for i in range(1, 41):
+        k = (i - 1) % 4
+        changes[i] = {"ref_frame": 4 * ((i - 1) // 4), "h_over_e": 0.97,
+                      "parallax_med_deg": 1.0 + 0.5 * k, "parallax_med_px": 4.0 + 2.0 * k,
+                      "rot_deg": 0.1, "rot_only_px": 0.4,
+                      "rot_focal_scale": 1.59 if k == 3 else 2.0}
+    # the upper half by parallax is k = 2 (at 2x) and k = 3 (inside): the edge is not ignored
+    res = evaluate(frames(41, changes), ruleset)
+    assert conds(res, 20) == ["planar_degeneracy"]
+    for i in range(1, 41):
+        changes[i]["rot_focal_scale"] = 1.2
+    res = evaluate(frames(41, changes), ruleset)  # every fit inside the range: a rotation
+    assert conds(res, 20) == ["pure_rotation"]
 
 
 def _keyframe_intervals(he_first: float, he_last: float, n: int = 40) -> pd.DataFrame:

@@ -569,8 +569,9 @@ def standing_still(par: np.ndarray, par_px: np.ndarray, rot: np.ndarray, p: Para
 
 
 def _bracketed_rotation_fit(df: pd.DataFrame, p: Params) -> np.ndarray:
-    """``rot_only_px``, NaN where its focal scale sits at an end of the search range (rules
-    with rot_fit_focal_min / rot_fit_focal_max).
+    """``rot_only_px``, infinite where its focal scale sits at an end of the search range (rules
+    with rot_fit_focal_min / rot_fit_focal_max): such a fit is evidence against a rotation, not
+    a missing reading, so in an interval's median it outvotes a lone fit inside the range.
 
     A rotation-only fit that wants a focal outside the range is not a rotation seen through an
     approximate K: as the focal grows the model x' ~ K R K^-1 x tends to a pure shift of the
@@ -586,7 +587,7 @@ def _bracketed_rotation_fit(df: pd.DataFrame, p: Params) -> np.ndarray:
     with np.errstate(invalid="ignore"):
         edge = ((scale <= p["rot_fit_focal_min"] * (1 + 1e-6))
                 | (scale >= p["rot_fit_focal_max"] * (1 - 1e-6)))
-    return np.where(edge, np.nan, rot_px)
+    return np.where(edge & ~np.isnan(rot_px), np.inf, rot_px)
 
 
 def _keyframe_read(df: pd.DataFrame, p: Params) -> pd.DataFrame:
@@ -753,15 +754,18 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     out += [f"degenerate > {p['he_degenerate']:g} (general 3D < 0.5); parallax split at "
             f"{p['parallax_split_deg']:g} deg (rotation < 0.1, plane 2-3)"]
     raw_rpx, raw_scale = _v(row, "rot_only_px"), _v(row, "rot_focal_scale")
-    if ("rot_fit_px" in p and np.isnan(rpx) and not np.isnan(raw_rpx)
-            and "rot_fit_focal_max" in p and "rot_fit_focal_min" in p
-            and not p["rot_fit_focal_min"] * (1 + 1e-6) < raw_scale
-            < p["rot_fit_focal_max"] * (1 - 1e-6)):
-        out.append(f"rotation-only model: best at {raw_scale:.2g}x the given focal, the end of "
-                   f"the {p['rot_fit_focal_min']:g}-{p['rot_fit_focal_max']:g}x range searched "
-                   f"({raw_rpx:.2g} px there), so not read as a rotation: a camera sliding "
-                   "sideways past a flat surface fits a rotation better the longer the focal")
-    if "rot_fit_px" in p and not np.isnan(rpx):
+    if "rot_fit_px" in p and np.isinf(rpx):
+        at_edge = ("rot_fit_focal_min" in p and "rot_fit_focal_max" in p
+                   and not p["rot_fit_focal_min"] * (1 + 1e-6) < raw_scale
+                   < p["rot_fit_focal_max"] * (1 - 1e-6))
+        out.append("rotation-only model: "
+                   + (f"this frame's fit is best at {raw_scale:.2g}x the given focal ("
+                      f"{raw_rpx:.2g} px there), " if at_edge else "")
+                   + f"most fits of the interval's higher-parallax frames are best at an end of "
+                   f"the {p.get('rot_fit_focal_min', 0.5):g}-{p.get('rot_fit_focal_max', 2):g}x "
+                   "focal range searched, so not read as a rotation: a camera sliding sideways "
+                   "past a flat surface fits a rotation better the longer the focal")
+    if "rot_fit_px" in p and np.isfinite(rpx):
         fits = rpx <= p["rot_fit_px"]
         scale = _v(row, "rot_focal_scale")
         out.append(f"rotation-only model (focal free 0.5-2x): median residual {rpx:.2g} px "
