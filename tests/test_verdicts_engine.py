@@ -364,13 +364,21 @@ def test_fits_at_the_edge_of_the_focal_range_outvote_a_lone_fit_inside_it(rulese
         k = (i - 1) % 4
         changes[i] = {"ref_frame": 4 * ((i - 1) // 4), "h_over_e": 0.97,
                       "parallax_med_deg": 1.0 + 0.5 * k, "parallax_med_px": 4.0 + 2.0 * k,
-                      "rot_deg": 0.1, "rot_only_px": 0.4,
-                      "rot_focal_scale": 1.59 if k == 3 else 2.0}
+                      "rot_deg": 0.1, "rot_only_px": np.nan if k == 0 else 0.4,
+                      "rot_focal_scale": np.nan if k == 0 else 1.59 if k == 3 else 2.0}
     # the upper half by parallax is k = 2 (at 2x) and k = 3 (inside): the edge is not ignored
     res = evaluate(frames(41, changes), ruleset)
     assert conds(res, 20) == ["planar_degeneracy"]
+    from frontdiag.verdicts.explain import explain_row
+
+    for f in (20, 21, 23):  # k = 3 (inside), k = 0 (no fit of its own), k = 2 (at the edge)
+        lines = next(e for e in explain_row(res, f) if e.rule.id == "FD-PLN-001").check_lines
+        edge = [ln for ln in lines if "focal range searched" in ln]
+        assert len(edge) == 1 and "nan" not in edge[0]
+        assert ("this frame's fit is best at 2x" in edge[0]) == (f == 23)
     for i in range(1, 41):
         changes[i]["rot_focal_scale"] = 1.2
+        changes[i]["rot_only_px"] = 0.4
     res = evaluate(frames(41, changes), ruleset)  # every fit inside the range: a rotation
     assert conds(res, 20) == ["pure_rotation"]
 

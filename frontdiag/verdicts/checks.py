@@ -436,7 +436,8 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
         trusted = not np.isnan(w) and w > p.get("ratio_min_inliers", 0.5)
         se = _v(row, "brightness_ratio_se")
         k = float(p.get("ratio_sigmas", 0.0))
-        clears = abs(math.log(ratio)) - k * (0.0 if np.isnan(se) else se) >= math.log(line)
+        clears = ratio > 0 and (abs(math.log(ratio)) - k * (0.0 if np.isnan(se) else se)
+                                >= math.log(line))
         out.append(f"brightness_ratio {ratio:.3f}: the same surfaces "
                    f"{abs(ratio - 1) * 100:.0f}% {'brighter' if ratio >= 1 else 'darker'} than "
                    f"in the previous frame, vs the step line {line:g} (or {1 / line:.3f})"
@@ -756,6 +757,7 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     raw_rpx, raw_scale = _v(row, "rot_only_px"), _v(row, "rot_focal_scale")
     if "rot_fit_px" in p and np.isinf(rpx):
         at_edge = ("rot_fit_focal_min" in p and "rot_fit_focal_max" in p
+                   and not np.isnan(raw_scale) and not np.isnan(raw_rpx)
                    and not p["rot_fit_focal_min"] * (1 + 1e-6) < raw_scale
                    < p["rot_fit_focal_max"] * (1 - 1e-6))
         out.append("rotation-only model: "
