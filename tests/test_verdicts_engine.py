@@ -354,6 +354,24 @@ def test_a_rotation_fit_counts_only_with_its_focal_inside_the_range(ruleset, he,
         assert any("an end of the 0.5-2x focal range searched" in ln for ln in lines)
 
 
+@pytest.mark.parametrize(("rot_px", "scale", "want"), [
+    (np.nan, np.nan, ["pure_rotation"]),    # no fit taken: the angle decides
+    (0.8, 1.1, ["pure_rotation"]),          # a rotation fits inside the range
+    (0.8, 2.0, ["planar_degeneracy"]),      # only a pure shift fits: a plane sliding past
+])
+def test_a_low_angle_on_a_plane_whose_fit_sits_at_the_edge_is_planar(ruleset, rot_px, scale,
+                                                                     want) -> None:
+    """On a plane E is not unique: the simulator's side wall at 640x480 read 1-3 deg of
+    rotation and 0.13-0.32 deg of parallax over a keyframe interval, the pure-rotation quadrant,
+    while the rotation-only fit sat at 2x. A homography that only a pure image shift explains
+    is a plane under translation, whatever share of it E calls rotation."""
+    # f = 1260 px (1280x720): 0.25 deg is 5.5 px, over the 4.9 px H/E needs to read a plane
+    row = {"h_over_e": 0.98, "parallax_med_deg": 0.25, "parallax_med_px": 5.5, "rot_deg": 2.0,
+           "rot_only_px": rot_px, "rot_focal_scale": scale}
+    res = evaluate(frames(20, {range(5, 15): row}), ruleset)
+    assert conds(res, 10) == want
+
+
 def test_fits_at_the_edge_of_the_focal_range_outvote_a_lone_fit_inside_it(ruleset) -> None:
     """Over a keyframe interval the fit is read as the median over its higher-parallax frames.
     A fit at the end of the range counts against a rotation, not as a missing reading: on the

@@ -518,6 +518,11 @@ def _quadrant(he: np.ndarray, par: np.ndarray, p: Params,
     if rot_px is not None and "rot_fit_px" in p:
         with np.errstate(invalid="ignore"):
             low = low | (rot_px <= p["rot_fit_px"])
+            if "rot_fit_focal_max" in p:
+                # fits at the edge of the focal range (infinite, _bracketed_rotation_fit): the
+                # views differ by a pure image shift, a plane sliding past, so a low angle is
+                # E's arbitrary split of that motion between rotation and translation
+                low = low & ~np.isposinf(rot_px)
     q[ok & ~degenerate & ~low] = 0
     q[ok & ~degenerate & low] = 1
     q[ok & degenerate & ~low] = 2
