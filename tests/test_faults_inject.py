@@ -179,6 +179,24 @@ def test_a_bag_whose_index_data_lies_is_read_by_its_chunk_info(sources: dict[str
     assert o.code == 0 and o.rows == FRAMES, o.err
 
 
+def test_a_bag_whose_index_connection_is_damaged_is_read_record_by_record(
+        sources: dict[str, Path], tmp_path: Path) -> None:
+    """Zeros over the data of the index's first connection record (found by a fault-injection
+    campaign: it ended in an internal error). The index cannot be used, so the bag is read
+    from the start: every frame, then the damage named, exit 2."""
+    data = bytearray(sources["bag"].read_bytes())
+    at = read_layout(sources["bag"]).index_pos
+    (hlen,) = struct.unpack_from("<I", data, at)
+    d0 = at + 4 + hlen
+    (dlen,) = struct.unpack_from("<I", data, d0)
+    data[d0 + 4:d0 + 4 + dlen] = bytes(dlen)
+    rec = tmp_path / "badconn.bag"
+    rec.write_bytes(bytes(data))
+    o = analyze(rec, tmp_path / "o")
+    assert o.code == 2 and o.rows == FRAMES, o.err
+    assert "index damaged" in (one_error_line(o.err) or "")
+
+
 @pytest.mark.parametrize("container", list(SOURCES))
 def test_damage_early_in_the_file_is_named_not_no_topics(
         sources: dict[str, Path], tmp_path: Path, container: str) -> None:

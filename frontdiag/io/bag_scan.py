@@ -132,6 +132,18 @@ class BagLayout:
     tail_fault: str | None = None  # the index is intact, but damage follows it
 
 
+def _parse_connection(hdr: dict[str, bytes], data: bytes) -> tuple[int, tuple[str, str, str]]:
+    """A connection record's id and (topic, message type, message definition); ValueError
+    when it is malformed."""
+    cid = _u32(hdr, "conn")
+    info = _fields(data)
+    topic = hdr.get("topic", info.get("topic", b"")).decode(errors="replace")
+    if "type" not in info:
+        raise ValueError(f"connection {cid} has no message type")
+    msgtype = normalise_msgtype(info["type"].decode(errors="replace"))
+    return cid, (topic, msgtype, info.get("message_definition", b"").decode(errors="replace"))
+
+
 def read_layout(path: Path) -> BagLayout:
     """Read the bag header and the index section (small: no message data is read)."""
     size = path.stat().st_size
@@ -163,6 +175,7 @@ def read_layout(path: Path) -> BagLayout:
                     break
                 op = _op(rec[0])
                 if op == OP_CONNECTION:
+                    _parse_connection(*rec)  # a damaged one makes the index unusable
                     layout.connections.append(rec)
                 elif op == OP_CHUNK_INFO:
                     layout.chunks.append(_chunk_info(*rec))
@@ -296,15 +309,8 @@ class ScannedBag(_Base):
 
     def _connection(self, hdr: dict[str, bytes], data: bytes) -> None:
         cid = _u32(hdr, "conn")
-        if cid in self._conns:
-            return
-        info = _fields(data)
-        topic = hdr.get("topic", info.get("topic", b"")).decode(errors="replace")
-        if "type" not in info:
-            raise ValueError(f"connection {cid} has no message type")
-        msgtype = normalise_msgtype(info["type"].decode(errors="replace"))
-        self._conns[cid] = (topic, msgtype,
-                            info.get("message_definition", b"").decode(errors="replace"))
+        if cid not in self._conns:
+            self._conns[cid] = _parse_connection(hdr, data)[1]
 
     @property
     def topics(self) -> list[TopicInfo]:
