@@ -63,8 +63,7 @@ def sources(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
 def _camera_counts(bag: Path) -> list[int]:
     """Camera messages per chunk, from the bag's chunk-info records."""
     lay = read_layout(bag)
-    conns = {int(struct.unpack("<I", h["conn"])[0]): h["topic"].decode()
-             for h, _ in lay.connections}
+    conns = {cid: info[0] for cid, info in lay.connections}
     cam = [cid for cid, t in conns.items() if t == "/cam/image_raw"]
     return [sum(c.counts.get(cid, 0) for cid in cam) for c in lay.chunks]
 

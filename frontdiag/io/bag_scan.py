@@ -126,7 +126,8 @@ class BagLayout:
 
     size: int
     index_pos: int = 0
-    connections: list[tuple[dict[str, bytes], bytes]] = field(default_factory=list)
+    # the index's connection records, parsed: id -> (topic, message type, message definition)
+    connections: list[tuple[int, tuple[str, str, str]]] = field(default_factory=list)
     chunks: list[ChunkInfo] = field(default_factory=list)
     index_fault: str | None = None  # the index cannot be used; read record by record
     tail_fault: str | None = None  # the index is intact, but damage follows it
@@ -174,9 +175,8 @@ def read_layout(path: Path) -> BagLayout:
                 if rec is None:
                     break
                 op = _op(rec[0])
-                if op == OP_CONNECTION:
-                    _parse_connection(*rec)  # a damaged one makes the index unusable
-                    layout.connections.append(rec)
+                if op == OP_CONNECTION:  # a damaged one makes the index unusable
+                    layout.connections.append(_parse_connection(*rec))
                 elif op == OP_CHUNK_INFO:
                     layout.chunks.append(_chunk_info(*rec))
                 else:
@@ -223,8 +223,8 @@ class ScannedBag(_Base):
         self._end: int | None = None
         self._by_index = self.layout.index_fault is None and bool(self.layout.chunks)
         if self._by_index:
-            for hdr, data in self.layout.connections:
-                self._connection(hdr, data)
+            for cid, info in self.layout.connections:
+                self._conns.setdefault(cid, info)
             for c in self.layout.chunks:
                 for cid, k in c.counts.items():
                     topic = self._conns.get(cid, (f"#{cid}",))[0]
