@@ -587,13 +587,18 @@ def _bracketed_rotation_fit(df: pd.DataFrame, p: Params) -> np.ndarray:
     the range says the views differ by a rotation.
     """
     rot_px = col(df, "rot_only_px")
-    if "rot_fit_focal_min" not in p or "rot_fit_focal_max" not in p:
-        return rot_px
-    scale = col(df, "rot_focal_scale")
-    with np.errstate(invalid="ignore"):
-        edge = ((scale <= p["rot_fit_focal_min"] * (1 + 1e-6))
-                | (scale >= p["rot_fit_focal_max"] * (1 - 1e-6)))
+    edge = _at_focal_edge(col(df, "rot_focal_scale"), p)
     return np.where(edge & ~np.isnan(rot_px), np.inf, rot_px)
+
+
+def _at_focal_edge(scale: np.ndarray, p: Params) -> np.ndarray:
+    """Where a rotation fit's focal scale sits at an end of the range searched (False where the
+    rule sets no range or the scale is missing)."""
+    if "rot_fit_focal_min" not in p or "rot_fit_focal_max" not in p:
+        return np.zeros(len(scale), dtype=bool)
+    with np.errstate(invalid="ignore"):
+        return ((scale <= p["rot_fit_focal_min"] * (1 + 1e-6))
+                | (scale >= p["rot_fit_focal_max"] * (1 - 1e-6)))
 
 
 def _keyframe_read(df: pd.DataFrame, p: Params) -> pd.DataFrame:
@@ -761,10 +766,7 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
             f"{p['parallax_split_deg']:g} deg (rotation < 0.1, plane 2-3)"]
     raw_rpx, raw_scale = _v(row, "rot_only_px"), _v(row, "rot_focal_scale")
     if "rot_fit_px" in p and np.isinf(rpx):
-        at_edge = ("rot_fit_focal_min" in p and "rot_fit_focal_max" in p
-                   and not np.isnan(raw_scale) and not np.isnan(raw_rpx)
-                   and not p["rot_fit_focal_min"] * (1 + 1e-6) < raw_scale
-                   < p["rot_fit_focal_max"] * (1 - 1e-6))
+        at_edge = not np.isnan(raw_rpx) and bool(_at_focal_edge(np.array([raw_scale]), p)[0])
         out.append("rotation-only model: "
                    + (f"this frame's fit is best at {raw_scale:.2g}x the given focal ("
                       f"{raw_rpx:.2g} px there), " if at_edge else "")
