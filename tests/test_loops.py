@@ -392,3 +392,75 @@ def test_a_loop_left_out_when_the_rounds_stop_is_not_called_too_loose_to_test(
         assert "the rounds stopped after 1 (max_rounds 0) before it joined the map" in r
         assert "too loose" not in r
     assert (t.loc[t["in_map"], "verdict"] == "ok").all()
+
+
+def _two_lap_square(path: Path, side: int, loops: list[tuple[int, int, int]], seed: int = 3
+                    ) -> Path:
+    """Two laps of a ``side`` m square in 1 m steps with noisy odometry (σ 0.1 m, 0.01 rad,
+    stated exactly), and loops ``(i, j, at)``: i -> j measured as where pose ``at`` truly is
+    (``at == j`` for a true loop), with σ 0.05 m / 0.01 rad of noise."""
+    rng = np.random.default_rng(seed)
+    corners = [(0, 0), (side, 0), (side, side), (0, side)]
+    P = np.array([(corners[s_][0] + s * np.cos(s_ * np.pi / 2),
+                   corners[s_][1] + s * np.sin(s_ * np.pi / 2), s_ * np.pi / 2)
+                  for _ in range(2) for s_ in range(4) for s in range(side)])
+
+    def rel(i: int, j: int) -> np.ndarray:
+        xi, yi, ti = P[i]
+        xj, yj, tj = P[j]
+        c, s = np.cos(ti), np.sin(ti)
+        dx, dy = xj - xi, yj - yi
+        return np.array([c * dx + s * dy, -s * dx + c * dy,
+                         np.arctan2(np.sin(tj - ti), np.cos(tj - ti))])
+
+    odo = (100.0, 0.0, 0.0, 100.0, 0.0, 1e4)
+    lines = [_edge2d(k, k + 1, *(rel(k, k + 1) + rng.normal(0, [0.1, 0.1, 0.01])), odo)
+             for k in range(len(P) - 1)]
+    for i, j, at in loops:
+        z = rel(i, at) + rng.normal(0, [0.05, 0.05, 0.01])
+        lines.append(_edge2d(i, j, *z, (400.0, 0.0, 0.0, 400.0, 0.0, 1e4)))
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_clusters_the_map_cannot_test_alone_are_verified_by_each_other(tmp_path: Path) -> None:
+    """Two laps of a 30 m square: short loops within each lap (their chains are certain, so
+    they build the first map), and three clusters of five loops from lap 1 to lap 2, each too
+    far from the others for the pair test: A at poses 0-8 and B at 40-48 are true, F at 60-68
+    claims poses 8 m further along lap 2 (a consistent alias, 2.6 chain σ: the chain and the
+    pair test pass it). The map of the short loops is uncertain to ~2.4 m between lap 1 and
+    lap 2, so without corroboration all fifteen are merely unverified; tested against the map
+    holding the other clusters, A and B pass with power and F is refuted (a cluster whose
+    test map holds F may fail it; it then joins in the rounds, once the map holds the other
+    true cluster)."""
+    from frontdiag.loops.rules import default_loop_rules_file, load_loop_rules
+
+    lap = 120
+    A = [(i, i + lap, i + lap) for i in range(0, 10, 2)]
+    B = [(i, i + lap, i + lap) for i in range(40, 50, 2)]
+    F = [(i, i + lap + 8, i + lap) for i in range(60, 70, 2)]
+    short = [(k, k + 4, k + 4) for k in range(5, 2 * lap - 5, 20)]
+    g = read_graph(_two_lap_square(tmp_path / "sq.g2o", 30, A + B + F + short))
+    text = default_loop_rules_file().read_text()
+    assert "corroborate = { value = true," in text
+    (tmp_path / "off.toml").write_text(
+        text.replace("corroborate = { value = true,", "corroborate = { value = false,"))
+    off = audit(g, load_loop_rules(tmp_path / "off.toml")).table
+    on = audit(g).table
+    long_ = (off["j"] - off["i"]) > 10
+    assert long_.sum() == 15
+    # the premise: alone, the map cannot test them, so the three clusters look alike
+    assert (off.loc[long_, "verdict"] == "warn").all()
+    assert (off.loc[long_, "map_sigma_m"] > 2.0).all()
+    assert (off.loc[~long_, "verdict"] == "ok").all()
+    on = on.set_index("i")
+    for i, _, _ in A + B:
+        assert on.loc[i, "verdict"] == "ok", on.loc[i, "reason"]
+        assert on.loc[i, "map_sigma_m"] < 0.5
+    # admitted by the corroboration (the rest join in the rounds after it, with power)
+    assert on.loc[[i for i, _, _ in A + B], "reason"].str.startswith(
+        "verified by other loops").any()
+    for i, _, _ in F:
+        assert on.loc[i, "verdict"] == "fail", on.loc[i, "reason"]
+        assert on.loc[i, "map_residual_m"] > 6.0
+    assert (on.loc[[k for k, _, _ in short], "verdict"] == "ok").all()
