@@ -65,6 +65,13 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
        "pose come from (spread weak keypoints that never match do not constrain it); NaN under 30 "
        "inliers, where even a uniform spread reads below 0.6 by sampling alone", "higher"),
     _M("occupied_cells", "count", "camera", "cells of the 8x6 grid holding at least one keypoint", "higher"),
+    _M("n_coarse_keypoints", "count", "camera",
+       "keypoints at pyramid level >= 3 (scale >= 1.73) with a FAST score >= 20: texture at "
+       "scale; sensor noise and paper grain make corners at the finest levels only (textured "
+       "views: 100-300 of the 297 those levels are given)", "higher"),
+    _M("coarse_hull_share", "ratio", "camera",
+       "share of the image covered by the convex hull of the n_coarse_keypoints: where the "
+       "texture at scale is; NaN under 3 of them"),
     _M("n_weak_keypoints", "count", "camera",
        "keypoints from the low-threshold FAST retry (t=7) in cells empty at t=20; many = low contrast"),
     # --- camera: matching (against the previous frame)

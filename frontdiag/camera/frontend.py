@@ -59,6 +59,7 @@ from frontdiag.camera.features import (
     MIN_ENTROPY_POINTS,
     Features,
     OrbExtractor,
+    coarse_texture,
     entropy_from_counts,
     grid_counts,
     spatial_entropy,
@@ -155,7 +156,8 @@ class _Keyframe:
 def _row_template() -> dict[str, Any]:
     return {
         "n_keypoints": 0, "n_weak_keypoints": 0, "keypoint_fill": NAN, "entropy_norm": NAN,
-        "occupied_cells": 0, "entropy_inliers_norm": NAN,
+        "occupied_cells": 0, "entropy_inliers_norm": NAN, "n_coarse_keypoints": 0,
+        "coarse_hull_share": NAN,
         "n_putative": 0, "ratio_reject_rate": NAN, "ratio_ambiguous_rate": NAN, "n_matches": 0,
         "ref_frame": -1, "n_ref_matches": 0, "tracked_share": NAN,
         "inliers_e": NAN, "inliers_h": NAN, "h_over_e": NAN, "inlier_ratio": NAN,
@@ -248,8 +250,10 @@ class CameraFrontend:
         occ = int(np.count_nonzero(counts))
         self._grid = counts
         fill = float(keypoint_fill(len(feats), w, h, self.params.n_features))
+        n_coarse, hull = coarse_texture(feats, w, h, self.params.fast_threshold)
         row.update(n_keypoints=len(feats), n_weak_keypoints=feats.n_weak, entropy_norm=ent,
-                   occupied_cells=occ, keypoint_fill=fill)
+                   occupied_cells=occ, keypoint_fill=fill, n_coarse_keypoints=n_coarse,
+                   coarse_hull_share=hull)
         mean = float(cv2.mean(gray)[0]) if gray.size else NAN
         row["mean_intensity"] = mean
         und = undistort_points(feats.xy, self.intrinsics)

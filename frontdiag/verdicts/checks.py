@@ -871,6 +871,45 @@ def _clustering_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     return out
 
 
+# --- texture at scale: a detector that fills its budget with noise ---------------------------------------------
+
+def _coarse_split(df: pd.DataFrame, p: Params) -> tuple[np.ndarray, np.ndarray]:
+    """(few corners at scale although the budget is full, of those: clustered where they are)."""
+    n, hull, fill = (col(df, m) for m in ("n_coarse_keypoints", "coarse_hull_share",
+                                          "keypoint_fill"))
+    with np.errstate(invalid="ignore"):
+        few = (fill >= p["fill_floor"]) & (n < p["coarse_min"])
+        clustered = few & (n >= p["min_points"]) & (hull < p["hull_max"])
+    return few, clustered
+
+
+def _texture_at_scale(df: pd.DataFrame, p: Params) -> np.ndarray:
+    few, clustered = _coarse_split(df, p)
+    return clustered if p["want"] == "clustered" else few & ~clustered
+
+
+def _texture_at_scale_explain(row: Mapping[str, Any], p: Params) -> list[str]:
+    n, hull, kp, fill = (_v(row, m) for m in ("n_coarse_keypoints", "coarse_hull_share",
+                                             "n_keypoints", "keypoint_fill"))
+    out = [f"n_coarse_keypoints {_fmt(n)} (level >= 3, FAST score >= 20) vs {p['coarse_min']:g}: "
+           "textured views keep 100-300; under it the corners found are fine-scale noise"]
+    if not np.isnan(fill) and fill < p["fill_floor"]:
+        out.append(f"{_fill_words(kp, fill)} < {p['fill_floor']:g}: the detector itself finds "
+                   "too little (FD-DET-001 reads this frame)")
+    elif not np.isnan(fill):
+        out.append(f"{_fill_words(kp, fill)} >= {p['fill_floor']:g}: the budget is full, of "
+                   "corners that do not survive at scale")
+    if np.isnan(hull):
+        out.append(f"fewer than {p['min_points']:g} of them: no texture to locate, a blank view")
+    elif hull < p["hull_max"]:
+        out.append(f"coarse_hull_share {hull:.3f} < {p['hull_max']:g}: what texture there is sits "
+                   "in one small part of the view (clustering)")
+    else:
+        out.append(f"coarse_hull_share {hull:.3f} >= {p['hull_max']:g}: the few corners at "
+                   "scale are scattered over the view, not one textured object (a blank view)")
+    return out
+
+
 # --- §4 of docs/derivations.md: RANSAC starvation -----------------------------------------------------------
 
 def _ransac_starved(df: pd.DataFrame, p: Params) -> np.ndarray:
@@ -1017,6 +1056,17 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
           {"entropy_alarm": "entropy_norm", "fill_floor": "keypoint_fill",
            "cond_confirm": "pose_info_cond"},
           frame=_clustering, explain=_clustering_explain),
+    Check("texture_at_scale", "the detector fills its budget but almost none of its corners "
+          "survive at scale (level >= 3): a blank view (want = absent) or one small textured "
+          "object on it (want = clustered)",
+          "frame", "camera", ("n_coarse_keypoints", "coarse_hull_share", "n_keypoints",
+                              "keypoint_fill"),
+          {"want": "choice:absent|clustered", "coarse_min": _NUM, "min_points": _NUM,
+           "hull_max": _NUM, "fill_floor": _NUM},
+          {"n_coarse_keypoints": "min", "coarse_hull_share": "min"},
+          {"coarse_min": "n_coarse_keypoints", "hull_max": "coarse_hull_share",
+           "fill_floor": "keypoint_fill"},
+          frame=_texture_at_scale, explain=_texture_at_scale_explain),
     Check("ransac_starved", "the iterations the measured inlier ratio requires "
           "exceed the iterations run, so the frame is untrusted", "frame", "camera",
           ("ransac_iters_required", "ransac_iters_run", "inlier_ratio"), {"margin": _NUM},
