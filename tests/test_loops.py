@@ -464,3 +464,55 @@ def test_clusters_the_map_cannot_test_alone_are_verified_by_each_other(tmp_path:
         assert on.loc[i, "verdict"] == "fail", on.loc[i, "reason"]
         assert on.loc[i, "map_residual_m"] > 6.0
     assert (on.loc[[k for k, _, _ in short], "verdict"] == "ok").all()
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_normal_equations_on_the_fixed_pattern_equal_the_full_assembly(dim: int) -> None:
+    """The upper-triangle assembly (one bincount into a cached CSC pattern) gives the upper
+    triangle of the full symmetric block matrix, duplicate edges summed, and the same g."""
+    import scipy.sparse as sp
+
+    from frontdiag.loops.solve import (
+        UpperPattern,
+        _chol_upper,
+        block_matrix,
+        linearise,
+        normal_equations,
+        scatter_add,
+    )
+
+    g, P = _exact_graph(dim, 40, seed=2, loops=15)
+    rng = np.random.default_rng(0)
+    src = np.concatenate([g.src, g.src[:3]])  # duplicates must be summed
+    dst = np.concatenate([g.dst, g.dst[:3]])
+    Z = np.concatenate([g.Z, g.Z[:3]])
+    info = np.concatenate([g.info, g.info[:3]]) * rng.uniform(0.5, 2.0, (len(src), 1, 1))
+    n, k = g.n_vertices, g.k
+    Pn = P.copy()
+    Pn[:, :dim, dim] += rng.normal(0, 0.1, (n, dim))  # residuals not zero
+    lin = linearise(Pn, src, dst, Z, _chol_upper(info), n)
+    H, gvec = normal_equations(lin, src, dst, n, 1e-3)
+    H2, _ = normal_equations(lin, src, dst, n, 1e-3, UpperPattern(src, dst, n, k))
+    # the reference: the full matrix assembled entry by entry with np.add.at
+    Wi = lin.U @ lin.Je_i
+    Wj = lin.U
+    diag = np.zeros((n, k, k))
+    np.add.at(diag, src, np.swapaxes(Wi, -1, -2) @ Wi)
+    np.add.at(diag, dst, np.swapaxes(Wj, -1, -2) @ Wj)
+    d = np.einsum("nii->ni", diag).copy()
+    ii = np.arange(k)
+    diag[:, ii, ii] += (1e-3 + 1e-12) * d + 1e-12
+    diag[0, ii, ii] += 1e10
+    full = block_matrix(diag, src, dst, np.swapaxes(Wi, -1, -2) @ Wj)
+    ref = sp.triu(full, format="csc").toarray()
+    assert np.allclose(H.toarray(), ref, rtol=1e-12, atol=1e-9)
+    assert np.allclose(H2.toarray(), ref, rtol=1e-12, atol=1e-9)
+    r = lin.r.reshape(-1, k)
+    gref = np.zeros((n, k))
+    np.add.at(gref, src, np.einsum("mji,mj->mi", Wi, r))
+    np.add.at(gref, dst, np.einsum("mji,mj->mi", Wj, r))
+    assert np.allclose(gvec, gref.ravel(), rtol=1e-12, atol=1e-12)
+    vals = rng.normal(size=(len(src), 2, 3))
+    ref3 = np.zeros((n, 2, 3))
+    np.add.at(ref3, src, vals)
+    assert np.allclose(scatter_add(src, vals, n), ref3)

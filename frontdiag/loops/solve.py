@@ -58,10 +58,56 @@ def linearise(P: F, src: NDArray[np.int64], dst: NDArray[np.int64], Z: F, U: F,
     return Linearised(r=r, U=U, Je_i=Ji)
 
 
+def scatter_add(idx: NDArray[np.int64], vals: F, n: int) -> F:
+    """``out[idx[m]] += vals[m]`` over the first axis (``np.add.at``), by one ``bincount``."""
+    w = int(np.prod(vals.shape[1:], dtype=np.int64))
+    flat = (idx[:, None] * w + np.arange(w)).ravel()
+    out = np.bincount(flat, weights=vals.reshape(-1), minlength=n * w)
+    return out.reshape((n, *vals.shape[1:]))
+
+
+class UpperPattern:
+    """The upper triangle (diagonal included) of a symmetric k x k block matrix with blocks on
+    the diagonal and at (src[e], dst[e]) / (dst[e], src[e]), as a CSC structure, and where every
+    block entry lands in it: each assembly is then one ``bincount`` into a fixed pattern."""
+
+    def __init__(self, src: NDArray[np.int64], dst: NDArray[np.int64], n: int, k: int) -> None:
+        ar = np.arange(k)
+        rb = np.repeat(ar, k)  # row within the block, row-major
+        cb = np.tile(ar, k)
+
+        def entries(bi: NDArray[np.int64], bj: NDArray[np.int64]
+                    ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+            return ((bi[:, None] * k + rb).ravel(), (bj[:, None] * k + cb).ravel())
+
+        ver = np.arange(n)
+        parts = [entries(ver, ver), entries(src, dst), entries(dst, src)]
+        rr = np.concatenate([p[0] for p in parts])
+        cc = np.concatenate([p[1] for p in parts])
+        N = n * k
+        self.keep = np.flatnonzero(rr <= cc)
+        keys = cc[self.keep].astype(np.int64) * N + rr[self.keep]
+        uniq, self.slot = np.unique(keys, return_inverse=True)
+        self.indices = (uniq % N).astype(np.int32)
+        self.indptr = np.searchsorted(uniq // N, np.arange(N + 1)).astype(np.int32)
+        self.shape = (N, N)
+        self.m = len(src)
+
+    def matrix(self, diag: F, off: F) -> sp.csc_matrix:
+        """Upper triangle of the matrix with ``diag[v]`` and ``off[e]`` blocks (duplicates
+        summed); the lower blocks are ``off[e]ᵀ``, so only their upper entries are read."""
+        vals = np.concatenate([diag.reshape(-1), off.reshape(-1),
+                               np.swapaxes(off, -1, -2).reshape(-1)])
+        data = np.bincount(self.slot, weights=vals[self.keep], minlength=len(self.indices))
+        return sp.csc_matrix((data, self.indices, self.indptr), shape=self.shape)
+
+
 def normal_equations(lin: Linearised, src: NDArray[np.int64], dst: NDArray[np.int64], n: int,
-                     damping: float = 0.0) -> tuple[sp.csc_matrix, F]:
-    """H = AᵀA (+ damping·diag + gauge prior) assembled block by block on a fixed pattern, so
-    that every iteration of one solve refactorises the same structure; and g = Aᵀr."""
+                     damping: float = 0.0, pattern: UpperPattern | None = None
+                     ) -> tuple[sp.csc_matrix, F]:
+    """The upper triangle of H = AᵀA (+ damping·diag + gauge prior), assembled block by block on
+    a fixed pattern, so that every iteration of one solve refactorises the same structure; and
+    g = Aᵀr. Pass the edge set's ``pattern`` to reuse it across iterations."""
     k = lin.U.shape[-1]
     Wi = lin.U @ lin.Je_i
     Wj = lin.U
@@ -69,18 +115,17 @@ def normal_equations(lin: Linearised, src: NDArray[np.int64], dst: NDArray[np.in
     Hii = np.swapaxes(Wi, -1, -2) @ Wi
     Hjj = np.swapaxes(Wj, -1, -2) @ Wj
     Hij = np.swapaxes(Wi, -1, -2) @ Wj
-    g = np.zeros((n, k))
-    np.add.at(g, src, np.einsum("mji,mj->mi", Wi, r))
-    np.add.at(g, dst, np.einsum("mji,mj->mi", Wj, r))
-    diag = np.zeros((n, k, k))
-    np.add.at(diag, src, Hii)
-    np.add.at(diag, dst, Hjj)
+    g = scatter_add(src, np.einsum("mji,mj->mi", Wi, r), n) \
+        + scatter_add(dst, np.einsum("mji,mj->mi", Wj, r), n)
+    diag = scatter_add(src, Hii, n) + scatter_add(dst, Hjj, n)
     dvals = np.einsum("nii->ni", diag).copy()
     idx = np.arange(k)
     # damping and a relative regulariser per entry (a mean would mix metres and radians)
     diag[:, idx, idx] += (damping + 1e-12) * dvals + 1e-12
     diag[0, idx, idx] += GAUGE_INFO
-    return block_matrix(diag, src, dst, Hij), g.ravel()
+    if pattern is None:
+        pattern = UpperPattern(src, dst, n, k)
+    return pattern.matrix(diag, Hij), g.ravel()
 
 
 def block_matrix(diag: F, src: NDArray[np.int64], dst: NDArray[np.int64],
@@ -107,6 +152,18 @@ def block_matrix(diag: F, src: NDArray[np.int64], dst: NDArray[np.int64],
     return sp.coo_matrix((vv, (rr, cc)), shape=(n * k, n * k)).tocsc()
 
 
+def _upper(H: sp.spmatrix) -> sp.csc_matrix:
+    """The upper triangle of H as CSC with sorted indices (H itself when it is one already)."""
+    if isinstance(H, sp.csc_matrix) and H.has_sorted_indices:
+        coo_r = H.indices
+        cols = np.repeat(np.arange(H.shape[1]), np.diff(H.indptr))
+        if np.all(coo_r <= cols):
+            return H
+    T = sp.triu(H, format="csc")
+    T.sort_indices()
+    return T
+
+
 class Factor:
     """LDLᵀ of a symmetric positive definite matrix (QDLDL with AMD ordering); ``update``
     refactorises new values on the same pattern without re-ordering."""
@@ -114,14 +171,12 @@ class Factor:
     def __init__(self, H: sp.csc_matrix) -> None:
         import qdldl
 
-        T = sp.triu(H, format="csc")
-        T.sort_indices()
+        T = _upper(H)
         self._pattern = (T.indptr.copy(), T.indices.copy())
         self._f = qdldl.Solver(T)
 
     def update(self, H: sp.csc_matrix) -> None:
-        T = sp.triu(H, format="csc")
-        T.sort_indices()
+        T = _upper(H)
         if (T.indptr.shape == self._pattern[0].shape and T.indices.shape ==
                 self._pattern[1].shape and np.array_equal(T.indptr, self._pattern[0])
                 and np.array_equal(T.indices, self._pattern[1])):
@@ -144,13 +199,14 @@ def solve(graph: PoseGraph, edges: NDArray[np.bool_], init: F, *, max_iters: int
     n, k, d = graph.n_vertices, graph.k, graph.dim
     P = init.copy()
     lam = 1e-4
+    pattern = UpperPattern(src, dst, n, k)
     lin = linearise(P, src, dst, Z, U, n)
     cost = float(lin.r @ lin.r)
     first = cost
     it = 0
     fac: Factor | None = None
     for it in range(1, max_iters + 1):  # noqa: B007
-        H, g = normal_equations(lin, src, dst, n, lam)
+        H, g = normal_equations(lin, src, dst, n, lam, pattern)
         if fac is None:
             fac = Factor(H)
         else:

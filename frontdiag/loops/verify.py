@@ -41,7 +41,14 @@ from scipy.stats import f as f_dist
 
 from frontdiag.loops import lie
 from frontdiag.loops.init import chordal_init
-from frontdiag.loops.solve import Factor, _chol_upper, linearise, normal_equations, solve
+from frontdiag.loops.solve import (
+    Factor,
+    _chol_upper,
+    linearise,
+    normal_equations,
+    scatter_add,
+    solve,
+)
 
 if TYPE_CHECKING:
     from frontdiag.loops.audit import LoopAudit
@@ -72,9 +79,8 @@ def map_test(result: LoopAudit, P: F, in_map: NDArray[np.bool_], seed: int = 0) 
     noise = rng.standard_normal((g.n_edges, k, N_DRAWS))
     # Aᵀ n for the map's edges
     Wi = lin.U @ lin.Je_i
-    b = np.zeros((n, k, N_DRAWS))
-    np.add.at(b, g.src[sel], np.einsum("mji,mjs->mis", Wi, noise[sel]))
-    np.add.at(b, g.dst[sel], np.einsum("mji,mjs->mis", lin.U, noise[sel]))
+    b = scatter_add(g.src[sel], np.einsum("mji,mjs->mis", Wi, noise[sel]), n) \
+        + scatter_add(g.dst[sel], np.einsum("mji,mjs->mis", lin.U, noise[sel]), n)
     dx = -fac.solve(b.reshape(n * k, N_DRAWS)).reshape(n, k, N_DRAWS)
     a, bb = g.src[loops], g.dst[loops]
     Ji = lin_all.Je_i[loops]
