@@ -369,3 +369,12 @@ def test_noise_fills_the_budget_but_leaves_no_texture_at_scale() -> None:
     assert not rule_mask(rules["FD-DET-001"], table).any()
     # keypoints' entropy reads the grain, spread over the view: blind to the pencil
     assert not rule_mask(rules["FD-CLU-002"], table).any()
+    from frontdiag.verdicts import CHECKS
+
+    explain = CHECKS["texture_at_scale"].explain
+    assert explain is not None
+    params = rules["FD-CLU-003"].param_values()
+    assert "texture at scale" in explain(textured, params)[0]
+    assert len(explain(textured, params)) == 1  # nothing about noise or blank views
+    assert any("one small part of the view" in x for x in explain(pen200, params))
+    assert any("a blank view" in x for x in explain(blank, params))

@@ -891,8 +891,12 @@ def _texture_at_scale(df: pd.DataFrame, p: Params) -> np.ndarray:
 def _texture_at_scale_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     n, hull, kp, fill = (_v(row, m) for m in ("n_coarse_keypoints", "coarse_hull_share",
                                              "n_keypoints", "keypoint_fill"))
-    out = [f"n_coarse_keypoints {_fmt(n)} (level >= 3, FAST score >= 20) vs {p['coarse_min']:g}: "
-           "textured views keep 100-300; under it the corners found are fine-scale noise"]
+    if not n < p["coarse_min"]:
+        return [f"n_coarse_keypoints {_fmt(n)} (level >= 3, FAST score >= 20) >= "
+                f"{p['coarse_min']:g}: the view has texture at scale (textured views keep "
+                "100-300); FD-CLU-001/002 read where it is from the keypoints themselves"]
+    out = [f"n_coarse_keypoints {_fmt(n)} (level >= 3, FAST score >= 20) < {p['coarse_min']:g}: "
+           "textured views keep 100-300; the rest of the corners found are fine-scale noise"]
     if not np.isnan(fill) and fill < p["fill_floor"]:
         out.append(f"{_fill_words(kp, fill)} < {p['fill_floor']:g}: the detector itself finds "
                    "too little (FD-DET-001 reads this frame)")
