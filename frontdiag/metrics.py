@@ -70,8 +70,8 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
        "scale; sensor noise and paper grain make corners at the finest levels only (textured "
        "views: 100-300 of the 297 those levels are given)", "higher"),
     _M("coarse_hull_share", "ratio", "camera",
-       "share of the image covered by the convex hull of the n_coarse_keypoints: where the "
-       "texture at scale is; NaN under 3 of them"),
+       "share of the image covered by the convex hull of the n_coarse_keypoints that have "
+       "another within 54 px (strays left out): where the texture at scale is; NaN under 3"),
     _M("n_weak_keypoints", "count", "camera",
        "keypoints from the low-threshold FAST retry (t=7) in cells empty at t=20; many = low contrast"),
     # --- camera: matching (against the previous frame)

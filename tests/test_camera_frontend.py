@@ -378,3 +378,26 @@ def test_noise_fills_the_budget_but_leaves_no_texture_at_scale() -> None:
     assert len(explain(textured, params)) == 1  # nothing about noise or blank views
     assert any("one small part of the view" in x for x in explain(pen200, params))
     assert any("a blank view" in x for x in explain(blank, params))
+
+
+def test_stray_corners_at_scale_do_not_spread_the_hull() -> None:
+    """A corner at scale with no other within the level-3 patch (54 px) is a stray: it is
+    counted but left out of the hull, so one object plus three specks reads as the object."""
+    from frontdiag.camera.features import CONFIRM_PX, Features, coarse_texture
+
+    obj = [(600, 300), (610, 305), (640, 298), (650, 310), (700, 320)]
+    strays = [(80, 600), (1200, 100), (1100, 650)]
+    xy = np.array(obj + strays, np.float32)
+    n = len(xy)
+    f = Features(xy, np.full(n, 3, np.int16), np.full(n, 30, np.float32),
+                 np.zeros(n, np.float32), np.zeros((n, 32), np.uint8))
+    count, hull = coarse_texture(f, 1280, 720, 20)
+    assert count == 8
+    obj_hull = cv2.contourArea(cv2.convexHull(np.array(obj, np.float32))) / (1280 * 720)
+    assert hull == pytest.approx(obj_hull)
+    assert abs(CONFIRM_PX - 31 * 1.2**3) < 1e-9
+    # two strays only: nothing confirmed, no hull
+    f2 = Features(xy[5:7], np.full(2, 3, np.int16), np.full(2, 30, np.float32),
+                  np.zeros(2, np.float32), np.zeros((2, 32), np.uint8))
+    assert coarse_texture(f2, 1280, 720, 20)[0] == 2
+    assert math.isnan(coarse_texture(f2, 1280, 720, 20)[1])

@@ -77,16 +77,29 @@ def entropy_from_counts(counts: np.ndarray) -> float:
 COARSE_LEVEL = 3
 
 
+# Two corners at scale closer than the ORB patch of the first coarse level (31 px x 1.2**3 = 54 px
+# of the original image) belong to one textured structure: the same corner found again at the
+# next levels, or two corners of one object. A corner at scale with no other within that distance
+# is a stray (a grain cluster or a speck that passed the threshold at one level only).
+CONFIRM_PX = PATCH_SIZE * 1.2**COARSE_LEVEL
+
+
 def coarse_texture(feats: Features, width: int, height: int, strong: float
                    ) -> tuple[int, float]:
     """``(count, hull share)`` of the keypoints at level >= COARSE_LEVEL with a FAST score of at
-    least ``strong``: how many, and the share of the image their convex hull covers (NaN under 3
-    points)."""
+    least ``strong``: how many, and the share of the image covered by the convex hull of those
+    with another of them within CONFIRM_PX (NaN under 3 such points)."""
     sel = (feats.octave >= COARSE_LEVEL) & (feats.response >= strong)
     n = int(np.count_nonzero(sel))
     if n < 3 or width <= 0 or height <= 0:
         return n, float("nan")
-    hull = cv2.convexHull(np.ascontiguousarray(feats.xy[sel], dtype=np.float32))
+    xy = feats.xy[sel].astype(np.float64)
+    d2 = ((xy[:, None, :] - xy[None, :, :]) ** 2).sum(axis=2)
+    np.fill_diagonal(d2, np.inf)
+    kept = xy[d2.min(axis=1) <= CONFIRM_PX * CONFIRM_PX]
+    if len(kept) < 3:
+        return n, float("nan")
+    hull = cv2.convexHull(np.ascontiguousarray(kept, dtype=np.float32))
     return n, float(cv2.contourArea(hull)) / float(width * height)
 
 
