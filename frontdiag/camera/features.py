@@ -93,10 +93,11 @@ def coarse_texture(feats: Features, width: int, height: int, strong: float
     n = int(np.count_nonzero(sel))
     if n < 3 or width <= 0 or height <= 0:
         return n, float("nan")
+    from scipy.spatial import cKDTree  # imported on first use: `frontdiag --help` need not
+
     xy = feats.xy[sel].astype(np.float64)
-    d2 = ((xy[:, None, :] - xy[None, :, :]) ** 2).sum(axis=2)
-    np.fill_diagonal(d2, np.inf)
-    kept = xy[d2.min(axis=1) <= CONFIRM_PX * CONFIRM_PX]
+    nearest, _ = cKDTree(xy).query(xy, k=2)  # column 0 is the point itself
+    kept = xy[nearest[:, 1] <= CONFIRM_PX]
     if len(kept) < 3:
         return n, float("nan")
     hull = cv2.convexHull(np.ascontiguousarray(kept, dtype=np.float32))
