@@ -378,6 +378,7 @@ def test_noise_fills_the_budget_but_leaves_no_texture_at_scale() -> None:
     assert len(explain(textured, params)) == 1  # nothing about noise or blank views
     assert any("one small part of the view" in x for x in explain(pen200, params))
     assert any("a blank view" in x for x in explain(blank, params))
+    assert "older frontdiag" in explain({}, params)[0]  # a table without the column
 
 
 def test_stray_corners_at_scale_do_not_spread_the_hull() -> None:

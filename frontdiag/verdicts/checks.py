@@ -891,6 +891,9 @@ def _texture_at_scale(df: pd.DataFrame, p: Params) -> np.ndarray:
 def _texture_at_scale_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     n, hull, kp, fill = (_v(row, m) for m in ("n_coarse_keypoints", "coarse_hull_share",
                                              "n_keypoints", "keypoint_fill"))
+    if np.isnan(n):
+        return ["n_coarse_keypoints not in this table (written by an older frontdiag): re-run "
+                "analyze to read texture at scale"]
     if not n < p["coarse_min"]:
         return [f"n_coarse_keypoints {_fmt(n)} (level >= 3, FAST score >= 20) >= "
                 f"{p['coarse_min']:g}: the view has texture at scale (textured views keep "
@@ -904,7 +907,8 @@ def _texture_at_scale_explain(row: Mapping[str, Any], p: Params) -> list[str]:
         out.append(f"{_fill_words(kp, fill)} >= {p['fill_floor']:g}: the budget is full, of "
                    "corners that do not survive at scale")
     if np.isnan(hull):
-        out.append(f"fewer than {p['min_points']:g} of them: no texture to locate, a blank view")
+        out.append(f"fewer than {p['min_points']:g} of them with another within 54 px: no "
+                   "texture to locate, a blank view")
     elif hull < p["hull_max"]:
         out.append(f"coarse_hull_share {hull:.3f} < {p['hull_max']:g}: what texture there is sits "
                    "in one small part of the view (clustering)")
