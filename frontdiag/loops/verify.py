@@ -100,7 +100,15 @@ def map_test(result: LoopAudit, P: F, in_map: NDArray[np.bool_], seed: int = 0) 
     R = lie.inv(g.Z[loops]) @ lie.inv(P[a]) @ P[bb]
     d = g.dim
     map_var = np.einsum("mis,mis->m", d_rel[:, :d], d_rel[:, :d]) / N_DRAWS
-    return {"map_sigma_m": np.sqrt(map_var * sigma0_sq), "T2": T2s, "p": p, "sigma0_sq": np.full(loops.size, sigma0_sq),
+    # what believing the loop moves the map by, G e with G = C_d S⁻¹ (C_d the map's own
+    # covariance between the loop's poses): outside the map S = Σ_L + C_d, the share of the
+    # residual the map would absorb; inside it S = Σ_L − C_d, and G e = e_out − e_in is what
+    # the loop has already moved it by. The variance factor cancels.
+    Cd = np.einsum("mis,mjs->mij", d_rel, d_rel) / N_DRAWS
+    fold = np.einsum("mij,mj->mi", Cd @ np.linalg.inv(S), e)[:, :d]
+    return {"map_sigma_m": np.sqrt(map_var * sigma0_sq), "T2": T2s, "p": p,
+            "sigma0_sq": np.full(loops.size, sigma0_sq),
+            "fold_m": np.linalg.norm(fold, axis=1),
             "residual_m": np.linalg.norm(R[:, :g.dim, g.dim], axis=1),
             "residual_deg": np.degrees(lie.rotation_angle(R))}
 
@@ -240,6 +248,7 @@ def verify_against_map(result: LoopAudit) -> None:
     t["map_p"] = res["p"]
     t["variance_factor"] = res["sigma0_sq"]
     t["map_sigma_m"] = res["map_sigma_m"]
+    t["map_fold_m"] = res["fold_m"]
     t["in_map"] = in_map
     result.timings["map_rounds"] = float(rounds)
     refuted = res["p"] < p_alarm
@@ -257,6 +266,14 @@ def verify_against_map(result: LoopAudit) -> None:
             reason[i] = (f"{reason[i]}; the map between its poses (σ {raw_sigma[i]:.2f} m) is "
                          f"no stiffer than its chain (σ {chain_sigma[i]:.2f} m), so the chain's "
                          f"refusal stands; {m}")
+        elif refuted[i] and verdict[i] != "fail" and res["fold_m"][i] <= fold_m:
+            # inconsistent with the map, but too small to fold it: kept, and said so
+            reason[i] = (f"kept: off the map beyond its stated covariance, but believing it "
+                         f"moves the map by {res['fold_m'][i]:.2f} m (<= fold_m {fold_m:g} m "
+                         f"of {r4.id}), too little to fold it; {m}")
+            if verdict[i] != "ok":
+                reason[i] = f"was {rule[i]}; {reason[i]}"
+            verdict[i], rule[i] = "ok", ""
         elif refuted[i]:
             if verdict[i] != "fail":
                 verdict[i], rule[i] = r3.severity, r3.id
