@@ -533,10 +533,15 @@ def test_a_loop_off_the_map_but_too_small_to_fold_it_is_kept_and_said_so(
         # the square's poses: the two laps coincide, so i -> i + 40 is the identity
         lines.append(_edge2d(i, j, lie_m, 0.0, 0.0, stiff))
     path.write_text("\n".join(lines) + "\n")
-    t = audit(read_graph(path)).table.set_index("i")
+    res = audit(read_graph(path))
+    t = res.table.set_index("i")
     small, big = t.loc[5], t.loc[13]
     assert small["map_p"] < 1e-6 and big["map_p"] < 1e-6  # both statistically refuted
     assert small["map_fold_m"] <= 0.5 < big["map_fold_m"]
     assert small["verdict"] == "ok" and "too little to fold it" in small["reason"]
     assert big["verdict"] == "fail"
     assert (t.drop(index=[5, 13])["verdict"] == "ok").all()
+    from frontdiag.loops.explain import explain_loop
+
+    text = explain_loop(res, int(np.flatnonzero(res.table["i"].to_numpy() == 5)[0]))
+    assert "believing it moves the map by 0.0" in text and "too little to fold it" in text

@@ -75,9 +75,15 @@ def explain_loop(result: LoopAudit, row: int) -> str:
     else:
         lines.append(f"pairs: no consistent neighbour; in conflict with {int(t['n_conflicts'])}")
     if "map_chi2" in result.table.columns and np.isfinite(t.get("map_chi2", np.nan)):
+        fold = t.get("map_fold_m", np.nan)
         lines.append(f"against the map of the verified loops: residual {t['map_residual_m']:.3f} m, "
-                     f"χ² {t['map_chi2']:.4g} (σ0² = {t.get('variance_factor', np.nan):.3g})")
-    lines.append(f"verdict: {t['verdict']}" + (f" {t['rule']}: {t['reason']}" if t["rule"] else ""))
+                     f"χ² {t['map_chi2']:.4g} (σ0² = {t.get('variance_factor', np.nan):.3g})"
+                     + (f"; believing it moves the map by {fold:.3f} m" if np.isfinite(fold)
+                        else ""))
+    if t["rule"]:
+        lines.append(f"verdict: {t['verdict']} {t['rule']}: {t['reason']}")
+    else:
+        lines.append(f"verdict: {t['verdict']}" + (f" ({t['reason']})" if t["reason"] else ""))
     if t["rule"]:
         r = result.rules.get(str(t["rule"]))
         lines += [f"  fix: {r.text.fix}", f"  wrong fix: {r.text.wrong_fix}"]
