@@ -545,3 +545,35 @@ def test_a_loop_off_the_map_but_too_small_to_fold_it_is_kept_and_said_so(
 
     text = explain_loop(res, int(np.flatnonzero(res.table["i"].to_numpy() == 5)[0]))
     assert "believing it moves the map by 0.0" in text and "too little to fold it" in text
+
+
+@pytest.mark.parametrize(("fold", "residual", "kept"), [
+    (0.2, 0.3, True), (0.2, 3.0, False), (0.8, 0.3, False)])
+def test_a_refuted_loop_is_kept_only_within_fold_m_in_both_fold_and_residual(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, fold: float, residual: float,
+        kept: bool) -> None:
+    """The decision alone: one loop the map test refutes (p = 0), with its fold and residual
+    set. A stiff map yields little to one loop (small G e) while a group of such loops would
+    move it by up to their residual, so both must be within fold_m (0.5 m) to keep it."""
+    import frontdiag.loops.verify as V
+
+    real = V.map_test
+    path = _square_graph(tmp_path / "sq.g2o", [(k, 40 + k, 0.0) for k in range(0, 40, 2)])
+    g = read_graph(path)
+    target = 7  # the loop 14 -> 54
+
+    def fake(r, P, m, seed=0):  # type: ignore[no-untyped-def]
+        res = real(r, P, m, seed=seed)
+        for key, v in (("p", 0.0), ("fold_m", fold), ("residual_m", residual)):
+            res[key] = res[key].copy()
+            res[key][target] = v
+        return res
+
+    monkeypatch.setattr(V, "map_test", fake)
+    t = audit(g).table
+    assert int(t["i"].iat[target]) == 14
+    assert (t["verdict"].iat[target] == "ok") == kept
+    if kept:
+        assert t["reason"].iat[target].startswith("kept: off the map")
+    else:
+        assert t["rule"].iat[target] == "FD-LOP-003"

@@ -266,11 +266,15 @@ def verify_against_map(result: LoopAudit) -> None:
             reason[i] = (f"{reason[i]}; the map between its poses (σ {raw_sigma[i]:.2f} m) is "
                          f"no stiffer than its chain (σ {chain_sigma[i]:.2f} m), so the chain's "
                          f"refusal stands; {m}")
-        elif refuted[i] and verdict[i] != "fail" and res["fold_m"][i] <= fold_m:
-            # inconsistent with the map, but too small to fold it: kept, and said so
+        elif refuted[i] and verdict[i] != "fail" and res["fold_m"][i] <= fold_m \
+                and res["residual_m"][i] <= fold_m:
+            # inconsistent with the map, but too small to fold it: kept, and said so. The
+            # residual is bounded too: a stiff map yields little to one loop (a small G e),
+            # but a group of such loops would move it by up to their residual
             reason[i] = (f"kept: off the map beyond its stated covariance, but believing it "
-                         f"moves the map by {res['fold_m'][i]:.2f} m (<= fold_m {fold_m:g} m "
-                         f"of {r4.id}), too little to fold it; {m}")
+                         f"moves the map by {res['fold_m'][i]:.2f} m and it is "
+                         f"{res['residual_m'][i]:.2f} m from it (both <= fold_m {fold_m:g} m of "
+                         f"{r4.id}), too little to fold it; {m}")
             if verdict[i] != "ok":
                 reason[i] = f"was {rule[i]}; {reason[i]}"
             verdict[i], rule[i] = "ok", ""
