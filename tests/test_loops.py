@@ -85,6 +85,11 @@ def test_toro_read_as_g2o_is_refused_naming_the_edge(tmp_path: Path, capsys) -> 
     assert "--layout toro" in err
 
 
+_EDGE3 = "EDGE_SE3:QUAT 0 1 1 0 0 0 0 0 1 " + " ".join(
+    ["1", "0", "0", "0", "0", "0", "1", "0", "0", "0", "0", "1", "0", "0", "0", "1", "0", "0",
+     "1", "0", "1"]) + "\n"
+
+
 @pytest.mark.parametrize("text, message", [
     ("EDGE_SE2 0 1 1 0 nan 1 0 0 1 0 1\n", "line 1: edge 0->1: measurement 1 0 nan is not finite"),
     ("EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 inf 0 0 1 0 0 1 0 1\n",
@@ -96,6 +101,10 @@ def test_toro_read_as_g2o_is_refused_naming_the_edge(tmp_path: Path, capsys) -> 
                                                      "0", "0", "1", "0", "0", "0", "1", "0",
                                                      "0", "1", "0", "1"]) + "\n",
      "line 1: edge 0->1: measurement 1 0 0 0 0 0 nan is not finite"),
+    ("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\nVERTEX_SE3:QUAT 1 1 0 0 1e308 1e308 1e308 1e308\n"
+     + _EDGE3, "line 2: vertex 1: quaternion "),
+    ("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 0\n" + _EDGE3,
+     "line 1: vertex 0: quaternion 0 0 0 0 has no direction"),
 ])
 def test_non_finite_values_are_refused_naming_the_line(tmp_path: Path, capsys, text: str,
                                                        message: str) -> None:
@@ -577,3 +586,15 @@ def test_a_refuted_loop_is_kept_only_within_fold_m_in_both_fold_and_residual(
         assert t["reason"].iat[target].startswith("kept: off the map")
     else:
         assert t["rule"].iat[target] == "FD-LOP-003"
+
+
+def test_a_vertex_quaternion_with_a_huge_component_is_normalised(tmp_path: Path) -> None:
+    """A vertex estimate is a starting guess: (0, 0, 0, -1e308) is the identity rotation's
+    direction, normalised without overflowing (its plain norm squares to inf; a fuzzed copy of
+    sphere2500 ended in an internal error)."""
+    (tmp_path / "v.g2o").write_text("VERTEX_SE3:QUAT 0 0 0 0 0 0 0 1\n"
+                                    "VERTEX_SE3:QUAT 1 1 0 0 0.09 -0.007 -0.27 -1e308\n" + _EDGE3)
+    g = read_graph(tmp_path / "v.g2o")
+    assert g.initial is not None
+    assert np.allclose(g.initial[1][:3, :3], np.eye(3))
+    assert main(["loops", str(tmp_path / "v.g2o"), "--quiet"]) in (0, 1)

@@ -189,6 +189,19 @@ def read_graph(path: Path | str, *, sqrt_info: bool = False,
         if bad_v.size:
             raise GraphError(path, f"line {vline[bad_v[0]]}: vertex {vid[bad_v[0]]}: estimate is "
                                    f"not finite ({bad_v.size} such vertex line(s))")
+        if dim == 3:
+            # a vertex estimate is only a starting guess: any finite non-zero quaternion is
+            # normalised (scaled first, so that a huge component does not overflow the norm)
+            qv = V[:, 3:7]
+            big = np.max(np.abs(qv), axis=1)
+            with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+                qn_v = big * np.linalg.norm(qv / big[:, None], axis=1)
+            bad_q = np.flatnonzero(~(np.isfinite(qn_v) & (qn_v > 0)))
+            if bad_q.size:
+                raise GraphError(path, f"line {vline[bad_q[0]]}: vertex {vid[bad_q[0]]}: "
+                                       f"quaternion {' '.join(f'{v:g}' for v in qv[bad_q[0]])} "
+                                       "has no direction (zero or overflowing norm)")
+            V[:, 3:7] = qv / qn_v[:, None]
     if dim == 2:
         Z = lie.se2(rows[:, 0], rows[:, 1], rows[:, 2])
         toro = np.asarray(e_toro) if layout == "auto" else np.full(len(e_toro), layout == "toro")
@@ -227,8 +240,7 @@ def read_graph(path: Path | str, *, sqrt_info: bool = False,
         src[f], dst[f] = dst[f], src[f].copy()
     initial = None
     if vid:
-        P = lie.se2(V[:, 0], V[:, 1], V[:, 2]) if dim == 2 else lie.se3(
-            V[:, :3], V[:, 3:7] / np.linalg.norm(V[:, 3:7], axis=1, keepdims=True))
+        P = lie.se2(V[:, 0], V[:, 1], V[:, 2]) if dim == 2 else lie.se3(V[:, :3], V[:, 3:7])
         initial = np.tile(np.eye(dim + 1), (ids.shape[0], 1, 1))
         initial[np.searchsorted(ids, np.asarray(vid, dtype=np.int64))] = P
     del k
