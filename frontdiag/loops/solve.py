@@ -91,7 +91,6 @@ class UpperPattern:
         self.indices = (uniq % N).astype(np.int32)
         self.indptr = np.searchsorted(uniq // N, np.arange(N + 1)).astype(np.int32)
         self.shape = (N, N)
-        self.m = len(src)
 
     def matrix(self, diag: F, off: F) -> sp.csc_matrix:
         """Upper triangle of the matrix with ``diag[v]`` and ``off[e]`` blocks (duplicates
