@@ -10,7 +10,6 @@ the whole table and return one finding.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -368,17 +367,17 @@ def _ratio_step(df: pd.DataFrame, p: Params) -> np.ndarray:
         return np.zeros(len(df), dtype=bool)
     r = col(df, "brightness_ratio")
     w = col(df, "inlier_ratio")
+    with np.errstate(invalid="ignore"):
+        return _ratio_clears(r, col(df, "brightness_ratio_se"), p) \
+            & (w > p.get("ratio_min_inliers", 0.5))
+
+
+def _ratio_clears(ratio: np.ndarray, se: np.ndarray, p: Params) -> np.ndarray:
+    """Whether the brightness ratio clears the step line (in log) by ratio_sigmas standard
+    errors of its own median (``brightness_ratio_se``; no margin where it is missing)."""
+    k = float(p.get("ratio_sigmas", 0.0))
     with np.errstate(invalid="ignore", divide="ignore"):
-        step = np.abs(np.log(r)) - _ratio_margin(df, p) >= np.log(p["ratio_step"])
-        return step & (w > p.get("ratio_min_inliers", 0.5))
-
-
-def _ratio_margin(df: pd.DataFrame, p: Params) -> np.ndarray:
-    """How far (in log) the brightness ratio must clear the step line: ratio_sigmas standard
-    errors of its own median (``brightness_ratio_se``; 0 where it is not in the table)."""
-    if "ratio_sigmas" not in p:
-        return np.zeros(len(df))
-    return p["ratio_sigmas"] * np.nan_to_num(col(df, "brightness_ratio_se"), nan=0.0)
+        return np.abs(np.log(ratio)) - k * np.nan_to_num(se, nan=0.0) >= np.log(p["ratio_step"])
 
 
 def _exposure_step(df: pd.DataFrame, p: Params) -> np.ndarray:
@@ -436,8 +435,7 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
         trusted = not np.isnan(w) and w > p.get("ratio_min_inliers", 0.5)
         se = _v(row, "brightness_ratio_se")
         k = float(p.get("ratio_sigmas", 0.0))
-        clears = ratio > 0 and (abs(math.log(ratio)) - k * (0.0 if np.isnan(se) else se)
-                                >= math.log(line))
+        clears = bool(_ratio_clears(np.array([ratio]), np.array([se]), p)[0])
         out.append(f"brightness_ratio {ratio:.3f}: the same surfaces "
                    f"{abs(ratio - 1) * 100:.0f}% {'brighter' if ratio >= 1 else 'darker'} than "
                    f"in the previous frame, vs the step line {line:g} (or {1 / line:.3f})"
