@@ -172,14 +172,15 @@ class Factor:
 
         T = _upper(H)
         self._pattern = (T.indptr.copy(), T.indices.copy())
-        self._f = qdldl.Solver(T)
+        # upper=True: T is the upper triangle already, which spares QDLDL its own triu copy
+        self._f = qdldl.Solver(T, upper=True)
 
     def update(self, H: sp.csc_matrix) -> None:
         T = _upper(H)
         if (T.indptr.shape == self._pattern[0].shape and T.indices.shape ==
                 self._pattern[1].shape and np.array_equal(T.indptr, self._pattern[0])
                 and np.array_equal(T.indices, self._pattern[1])):
-            self._f.update(T)
+            self._f.update(T, upper=True)
         else:
             self.__init__(H)  # type: ignore[misc]
 
