@@ -328,8 +328,9 @@ def test_chordal_start_recovers_exact_poses(dim: int) -> None:
 
 
 def test_solve_from_the_chordal_start_reaches_the_lower_minimum() -> None:
-    """intel: from the odometry chain LM stops in a local minimum (cost 191 317, the map 6.9 m
-    from the optimum); from the chordal start it reaches cost ~220."""
+    """intel: from the odometry chain LM is still far from the optimum after its 50 iterations
+    (cost 90 117, the map 6.6 m away; 14 677 after 200); from the chordal start it reaches
+    cost ~216."""
     from frontdiag.loops.chain import build_chain
     from frontdiag.loops.init import chordal_init
     from frontdiag.loops.solve import solve
@@ -342,7 +343,7 @@ def test_solve_from_the_chordal_start_reaches_the_lower_minimum() -> None:
     chain = build_chain(g, g.odometry_mask()).P
     _, from_chain = solve(g, every, chain)
     _, from_chordal = solve(g, every, chordal_init(g, every, chain))
-    assert from_chain["cost"] > 1e5
+    assert from_chain["cost"] > 100 * from_chordal["cost"]
     assert from_chordal["cost"] < 300
 
 
@@ -504,7 +505,7 @@ def test_normal_equations_on_the_fixed_pattern_equal_the_full_assembly(dim: int)
     H2, _ = normal_equations(lin, src, dst, n, 1e-3, UpperPattern(src, dst, n, k))
     # the reference: the full matrix assembled entry by entry with np.add.at
     Wi = lin.U @ lin.Je_i
-    Wj = lin.U
+    Wj = lin.U @ lin.Je_j
     diag = np.zeros((n, k, k))
     np.add.at(diag, src, np.swapaxes(Wi, -1, -2) @ Wi)
     np.add.at(diag, dst, np.swapaxes(Wj, -1, -2) @ Wj)
@@ -525,6 +526,99 @@ def test_normal_equations_on_the_fixed_pattern_equal_the_full_assembly(dim: int)
     ref3 = np.zeros((n, 2, 3))
     np.add.at(ref3, src, vals)
     assert np.allclose(scatter_add(src, vals, n), ref3)
+
+
+def _noisy_graph(dim: int, seed: int) -> tuple[object, np.ndarray]:
+    """The exact graph with its loop measurements bent by of ~0.25 rad and 0.25 m per axis, so that the
+    optimum leaves residuals on the edges."""
+    from frontdiag.loops import lie
+
+    g, P = _exact_graph(dim, 40, seed=seed, loops=12)
+    rng = np.random.default_rng(seed + 10)
+    xi = rng.normal(0, 0.25, (g.n_edges, g.k))
+    xi[: g.n_vertices - 1] *= 0.1  # odometry nearly exact, loops off
+    g.Z[:] = g.Z @ lie.exp(xi, dim)
+    return g, P
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_edge_jacobians_match_finite_differences(dim: int) -> None:
+    """The Jacobians of e = Log(Z⁻¹ P_i⁻¹ P_j) under right perturbations, J_r⁻¹(e) Ad... wrt
+    P_i and J_r⁻¹(e) wrt P_j, against central differences, on edges with residuals up to
+    ~0.5: agreement to the second-order term of J_r⁻¹ (not the identity's first-order error)."""
+    from frontdiag.loops import lie
+    from frontdiag.loops.solve import edge_errors, linearise
+
+    g, P = _noisy_graph(dim, seed=5)
+    k, h = g.k, 1e-6
+    lin = linearise(P, g.src, g.dst, g.Z, np.tile(np.eye(k), (g.n_edges, 1, 1)), g.n_vertices)
+    e0, T = edge_errors(P, g.src, g.dst, g.Z)
+    assert np.linalg.norm(e0, axis=1).max() > 0.5  # the residuals are not small
+    for end, J in (("src", lin.Je_i), ("dst", lin.Je_j)):
+        num = np.zeros_like(J)
+        for c in range(k):
+            d = np.zeros((g.n_edges, k))
+            d[:, c] = h
+            errs = []
+            for sgn in (1.0, -1.0):
+                Pi, Pj = P[g.src].copy(), P[g.dst].copy()
+                if end == "src":
+                    Pi = Pi @ lie.exp(sgn * d, dim)
+                else:
+                    Pj = Pj @ lie.exp(sgn * d, dim)
+                errs.append(lie.log(lie.inv(g.Z) @ lie.inv(Pi) @ Pj))
+            num[:, :, c] = (errs[0] - errs[1]) / (2 * h)
+        err = np.abs(J - num).max(axis=(1, 2))
+        without = np.abs((-lie.adjoint(lie.inv(lie.inv(P[g.src]) @ P[g.dst]))
+                          if end == "src" else np.eye(k)) - num).max(axis=(1, 2))
+        # the neglected term is ad(e)²/12 (times Ad(T⁻¹), whose size grows with the edge's
+        # translation, at the source end)
+        size = np.linalg.norm(e0, axis=1)
+        arm = 1.0 + (np.linalg.norm(T[:, :dim, dim], axis=1) if end == "src" else 0.0)
+        assert np.all(err <= size**2 / 4 * arm + 1e-6)
+        big = size > 0.3
+        assert big.sum() >= 5
+        assert np.all(err[big] < 0.3 * without[big])
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_solve_stops_near_a_stationary_point_of_the_cost(dim: int, monkeypatch) -> None:
+    """Where edges keep residuals, the gradient of the cost at the solution (central
+    differences of the cost itself, not the solver's Jacobian) is what the second-order term of
+    J_r⁻¹ leaves: 0.006-0.008 here, against 0.17 where J_r⁻¹ is taken as I (the iterations
+    then stop where that approximate gradient vanishes), and the cost is lower."""
+    from frontdiag.loops import lie
+    from frontdiag.loops.solve import edge_errors, solve
+
+    g, P = _noisy_graph(dim, seed=7)
+    L = np.linalg.cholesky(g.info)
+
+    def cost(X: np.ndarray) -> float:
+        e, _ = edge_errors(X, g.src, g.dst, g.Z)
+        return float((np.einsum("mji,mj->mi", L, e) ** 2).sum())
+
+    def grad_max(X: np.ndarray) -> float:
+        h, out = 1e-6, 0.0
+        for v in range(1, g.n_vertices):  # vertex 0 is the gauge
+            for c in range(g.k):
+                d = np.zeros((1, g.k))
+                d[0, c] = h
+                Xp, Xm = X.copy(), X.copy()
+                Xp[v] = X[v] @ lie.exp(d, dim)[0]
+                Xm[v] = X[v] @ lie.exp(-d, dim)[0]
+                out = max(out, abs(cost(Xp) - cost(Xm)) / (2 * h))
+        return out
+
+    every = np.ones(g.n_edges, bool)
+    Q, st = solve(g, every, P, tol=1e-12)
+    assert abs(cost(Q) - st["cost"]) < 1e-9 * max(cost(Q), 1.0)
+    assert cost(Q) > 0.5  # residuals are left
+    monkeypatch.setattr(lie, "right_jacobian_inv",
+                        lambda xi: np.broadcast_to(np.eye(xi.shape[-1]),
+                                                   (*xi.shape[:-1], xi.shape[-1], xi.shape[-1])))
+    Q_id, _ = solve(g, every, P, tol=1e-12)
+    assert cost(Q) < cost(Q_id)
+    assert grad_max(Q) < 0.1 * grad_max(Q_id)
 
 
 def test_a_loop_off_the_map_but_too_small_to_fold_it_is_kept_and_said_so(

@@ -82,6 +82,31 @@ def adjoint(T: F) -> F:
     return out
 
 
+def ad(xi: F) -> F:
+    """ad(ξ), the adjoint of the Lie algebra, for tangent vectors ordered translation first:
+    (..., k) -> (..., k, k). ``ad(ξ) η`` is the bracket [ξ, η]."""
+    k = xi.shape[-1]
+    out = np.zeros((*xi.shape[:-1], k, k))
+    if k == 3:
+        rho, th = xi[..., :2], xi[..., 2]
+        out[..., 0, 1], out[..., 1, 0] = -th, th
+        out[..., 0, 2], out[..., 1, 2] = rho[..., 1], -rho[..., 0]
+        return out
+    W = _skew(xi[..., 3:])
+    out[..., :3, :3] = W
+    out[..., :3, 3:] = _skew(xi[..., :3])
+    out[..., 3:, 3:] = W
+    return out
+
+
+def right_jacobian_inv(xi: F) -> F:
+    """J_r⁻¹(ξ) to first order, ``I + ad(ξ)/2``: ``Log(Exp(ξ)·Exp(δ)) ≈ ξ + J_r⁻¹(ξ) δ``
+    (Solà, Deray & Atchuthan 2018, "A micro Lie theory for state estimation in robotics").
+    The next term is O(|ξ|²): 0.002 (SE(2)) and 0.02 (SE(3)) at |ξ| ≈ 0.5."""
+    k = xi.shape[-1]
+    return np.eye(k) + 0.5 * ad(xi)
+
+
 def log(T: F) -> F:
     """Log map (..., d+1, d+1) -> (..., k): exact, translation first."""
     d = T.shape[-1] - 1

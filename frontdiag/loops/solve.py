@@ -35,7 +35,9 @@ class Linearised:
     U: F
     """(edges, k, k) upper Cholesky factors of the information, Ω = UᵀU."""
     Je_i: F
-    """(edges, k, k) unwhitened Jacobian blocks wrt the source vertex (wrt dst it is I)."""
+    """(edges, k, k) unwhitened Jacobian blocks of the error wrt the source vertex."""
+    Je_j: F
+    """(edges, k, k) the same wrt the destination vertex."""
 
 
 def _chol_upper(info: F) -> F:
@@ -51,11 +53,18 @@ def edge_errors(P: F, src: NDArray[np.int64], dst: NDArray[np.int64], Z: F) -> t
 
 def linearise(P: F, src: NDArray[np.int64], dst: NDArray[np.int64], Z: F, U: F,
               n: int) -> Linearised:
+    """Whitened residuals and the Jacobians of e = Log(Z⁻¹ P_i⁻¹ P_j) under right perturbations
+    of the poses: J_r⁻¹(e) wrt P_j and −J_r⁻¹(e) Ad(T_ij⁻¹) wrt P_i. J_r⁻¹(e) taken as I is
+    exact only at e = 0: the iterations then stop where that approximate Jᵀr vanishes, which is
+    not the least-squares minimum wherever edges keep a residual (CSAIL: cost 40.408 instead of
+    40.404), and where loops disagree, far from it (intel with 30 % grouped false loops: the
+    second round's map at cost 5198 after 50 iterations, 3534 with J_r⁻¹)."""
     e, T = edge_errors(P, src, dst, Z)
-    Ji = -lie.adjoint(lie.inv(T))
+    Jr_inv = lie.right_jacobian_inv(e)
+    Ji = -Jr_inv @ lie.adjoint(lie.inv(T))
     del n
     r = np.einsum("mij,mj->mi", U, e).ravel()
-    return Linearised(r=r, U=U, Je_i=Ji)
+    return Linearised(r=r, U=U, Je_i=Ji, Je_j=Jr_inv)
 
 
 def scatter_add(idx: NDArray[np.int64], vals: F, n: int) -> F:
@@ -109,7 +118,7 @@ def normal_equations(lin: Linearised, src: NDArray[np.int64], dst: NDArray[np.in
     g = Aᵀr. Pass the edge set's ``pattern`` to reuse it across iterations."""
     k = lin.U.shape[-1]
     Wi = lin.U @ lin.Je_i
-    Wj = lin.U
+    Wj = lin.U @ lin.Je_j
     r = lin.r.reshape(-1, k)
     Hii = np.swapaxes(Wi, -1, -2) @ Wi
     Hjj = np.swapaxes(Wj, -1, -2) @ Wj
