@@ -543,16 +543,16 @@ def _noisy_graph(dim: int, seed: int) -> tuple[object, np.ndarray]:
 
 @pytest.mark.parametrize("dim", [2, 3])
 def test_edge_jacobians_match_finite_differences(dim: int) -> None:
-    """The Jacobians of e = Log(Z⁻¹ P_i⁻¹ P_j) under right perturbations, J_r⁻¹(e) Ad... wrt
-    P_i and J_r⁻¹(e) wrt P_j, against central differences, on edges with residuals up to
-    ~0.5: agreement to the second-order term of J_r⁻¹ (not the identity's first-order error)."""
+    """The Jacobians of e = Log(Z⁻¹ P_i⁻¹ P_j) under right perturbations, −J_r⁻¹(e) Ad(T⁻¹)
+    wrt P_i and J_r⁻¹(e) wrt P_j, against central differences, on edges with residuals up to
+    ~0.8: exact (J_r⁻¹ taken as I is off by up to a few tenths there)."""
     from frontdiag.loops import lie
     from frontdiag.loops.solve import edge_errors, linearise
 
     g, P = _noisy_graph(dim, seed=5)
     k, h = g.k, 1e-6
     lin = linearise(P, g.src, g.dst, g.Z, np.tile(np.eye(k), (g.n_edges, 1, 1)), g.n_vertices)
-    e0, T = edge_errors(P, g.src, g.dst, g.Z)
+    e0, _ = edge_errors(P, g.src, g.dst, g.Z)
     assert np.linalg.norm(e0, axis=1).max() > 0.5  # the residuals are not small
     for end, J in (("src", lin.Je_i), ("dst", lin.Je_j)):
         num = np.zeros_like(J)
@@ -571,22 +571,18 @@ def test_edge_jacobians_match_finite_differences(dim: int) -> None:
         err = np.abs(J - num).max(axis=(1, 2))
         without = np.abs((-lie.adjoint(lie.inv(lie.inv(P[g.src]) @ P[g.dst]))
                           if end == "src" else np.eye(k)) - num).max(axis=(1, 2))
-        # the neglected term is ad(e)²/12 (times Ad(T⁻¹), whose size grows with the edge's
-        # translation, at the source end)
-        size = np.linalg.norm(e0, axis=1)
-        arm = 1.0 + (np.linalg.norm(T[:, :dim, dim], axis=1) if end == "src" else 0.0)
-        assert np.all(err <= size**2 / 4 * arm + 1e-6)
-        big = size > 0.3
+        assert err.max() < 1e-6
+        big = np.linalg.norm(e0, axis=1) > 0.3
         assert big.sum() >= 5
-        assert np.all(err[big] < 0.3 * without[big])
+        assert np.all(without[big] > 0.01)
 
 
 @pytest.mark.parametrize("dim", [2, 3])
 def test_solve_stops_near_a_stationary_point_of_the_cost(dim: int, monkeypatch) -> None:
     """Where edges keep residuals, the gradient of the cost at the solution (central
-    differences of the cost itself, not the solver's Jacobian) is what the second-order term of
-    J_r⁻¹ leaves: 0.006-0.008 here, against 0.17 where J_r⁻¹ is taken as I (the iterations
-    then stop where that approximate gradient vanishes), and the cost is lower."""
+    differences of the cost itself, not the solver's Jacobian) vanishes; where J_r⁻¹ is taken as
+    I the iterations stop where that approximate gradient vanishes instead, at a higher cost
+    and a gradient of 0.17 here."""
     from frontdiag.loops import lie
     from frontdiag.loops.solve import edge_errors, solve
 
@@ -618,7 +614,8 @@ def test_solve_stops_near_a_stationary_point_of_the_cost(dim: int, monkeypatch) 
                                                    (*xi.shape[:-1], xi.shape[-1], xi.shape[-1])))
     Q_id, _ = solve(g, every, P, tol=1e-12)
     assert cost(Q) < cost(Q_id)
-    assert grad_max(Q) < 0.1 * grad_max(Q_id)
+    assert grad_max(Q) < 1e-5  # 2-4e-8 measured
+    assert grad_max(Q_id) > 0.05  # 0.17
 
 
 def test_a_loop_off_the_map_but_too_small_to_fold_it_is_kept_and_said_so(

@@ -99,12 +99,61 @@ def ad(xi: F) -> F:
     return out
 
 
+def _series(th: F, exact: F, small: F) -> F:
+    """``exact`` where |θ| is not small, else its Taylor value ``small`` (same shapes)."""
+    return np.where(np.abs(th) < 1e-4, small, exact)
+
+
 def right_jacobian_inv(xi: F) -> F:
-    """J_r⁻¹(ξ) to first order, ``I + ad(ξ)/2``: ``Log(Exp(ξ)·Exp(δ)) ≈ ξ + J_r⁻¹(ξ) δ``
-    (Solà, Deray & Atchuthan 2018, "A micro Lie theory for state estimation in robotics").
-    The next term is O(|ξ|²): 0.002 (SE(2)) and 0.02 (SE(3)) at |ξ| ≈ 0.5."""
+    """J_r⁻¹(ξ), exact: ``Log(Exp(ξ)·Exp(δ)) ≈ ξ + J_r⁻¹(ξ) δ``, (..., k) -> (..., k, k).
+
+    SE(2): the inverse of J_r in Solà, Deray & Atchuthan 2018 ("A micro Lie theory for state
+    estimation in robotics", eq. 163), block-triangular with the inverse of a scaled rotation
+    on the diagonal. SE(3): J_r(ξ) = J_l(−ξ), and J_l = [[J, Q], [0, J]] with the SO(3) left
+    Jacobian J and Barfoot's Q(ρ, φ) (Barfoot 2017, "State Estimation for Robotics",
+    sec. 7.1.5), inverted block-wise: [[J⁻¹, −J⁻¹QJ⁻¹], [0, J⁻¹]], J⁻¹ in closed form. To first
+    order it is ``I + ad(ξ)/2``, which is off by tenths at the radians of a false loop's
+    residual."""
     k = xi.shape[-1]
-    return np.eye(k) + 0.5 * ad(xi)
+    out = np.zeros((*xi.shape[:-1], k, k))
+    if k == 3:
+        r1, r2, th = xi[..., 0], xi[..., 1], xi[..., 2]
+        t = np.where(np.abs(th) < 1e-4, 1.0, th)
+        s, c = np.sin(t), np.cos(t)
+        a = _series(th, s / t, 1.0 - th**2 / 6.0)
+        b = _series(th, (1.0 - c) / t, th / 2.0)
+        # J_r = [[a, b, x], [-b, a, y], [0, 0, 1]]
+        x = _series(th, (t * r1 - r2 + r2 * c - r1 * s) / t**2, -r2 / 2.0 + r1 * th / 6.0)
+        y = _series(th, (r1 + t * r2 - r1 * c - r2 * s) / t**2, r1 / 2.0 + r2 * th / 6.0)
+        den = a * a + b * b
+        ia, ib = a / den, b / den  # [[a, b], [-b, a]]⁻¹ = [[ia, -ib], [ib, ia]]
+        out[..., 0, 0], out[..., 0, 1], out[..., 1, 0], out[..., 1, 1] = ia, -ib, ib, ia
+        out[..., 0, 2] = -(ia * x - ib * y)
+        out[..., 1, 2] = -(ib * x + ia * y)
+        out[..., 2, 2] = 1.0
+        return out
+    rho, phi = -xi[..., :3], -xi[..., 3:]  # J_r(ξ) = J_l(−ξ)
+    th = np.linalg.norm(phi, axis=-1)
+    t = np.where(th < 1e-4, 1.0, th)
+    s, c = np.sin(t), np.cos(t)
+    A = _skew(phi)
+    B = _skew(rho)
+    A2 = A @ A
+    ABA = A @ B @ A
+    c2 = _series(th, (t - s) / t**3, np.full_like(th, 1.0 / 6.0))
+    c3 = _series(th, (t**2 + 2.0 * c - 2.0) / (2.0 * t**4), np.full_like(th, 1.0 / 24.0))
+    c4 = _series(th, (2.0 * t - 3.0 * s + t * c) / (2.0 * t**5), np.full_like(th, 1.0 / 120.0))
+    # 1/θ² − (1 + cos θ)/(2θ sin θ), with (1 + cos θ)/sin θ = cot(θ/2): finite at θ = π
+    c5 = _series(th, 1.0 / t**2 - np.cos(t / 2) / (2.0 * t * np.sin(t / 2)),
+                 np.full_like(th, 1.0 / 12.0))
+    Q = (0.5 * B + c2[..., None, None] * (A @ B + B @ A + ABA)
+         + c3[..., None, None] * (A2 @ B + B @ A2 - 3.0 * ABA)
+         + c4[..., None, None] * (ABA @ A + A2 @ B @ A))
+    Jinv = np.eye(3) - 0.5 * A + c5[..., None, None] * A2
+    out[..., :3, :3] = Jinv
+    out[..., :3, 3:] = -Jinv @ Q @ Jinv
+    out[..., 3:, 3:] = Jinv
+    return out
 
 
 def log(T: F) -> F:
