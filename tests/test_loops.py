@@ -266,6 +266,26 @@ def test_map_test_refutes_a_long_loop_the_chain_cannot(tmp_path: Path) -> None:
     assert (res.table[res.table["i"] != 3]["verdict"] == "ok").all()
 
 
+def test_a_map_solved_short_of_convergence_is_said(tmp_path: Path, monkeypatch, capsys
+                                                    ) -> None:
+    """When the last map's solve runs out of iterations the audit says its loops were tested
+    against an unconverged map (notes, console); a converged one says nothing."""
+    from functools import partial
+
+    from frontdiag.loops import verify
+    from frontdiag.loops.solve import solve
+
+    spec = [(k, 40 + k, 0.0) for k in range(0, 40, 2)] + [(3, 75, 3.0)]
+    path = _square_graph(tmp_path / "sq.g2o", spec)
+    assert not any("unconverged" in n for n in audit(read_graph(path)).notes)
+    monkeypatch.setattr(verify, "solve", partial(solve, max_iters=1))
+    notes = audit(read_graph(path)).notes
+    assert any("1-iteration cap before converging" in n and "unconverged map" in n
+               for n in notes)
+    assert main(["loops", str(path), "--out", str(tmp_path / "res")]) == 1
+    assert "unconverged map" in capsys.readouterr().out
+
+
 @pytest.mark.parametrize("offset", range(40))
 def test_a_chain_refusal_is_not_overruled_by_a_map_no_stiffer_than_the_chain(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, offset: int) -> None:

@@ -202,7 +202,10 @@ class Factor:
 
 def solve(graph: PoseGraph, edges: NDArray[np.bool_], init: F, *, max_iters: int = 50,
           tol: float = 1e-7) -> tuple[F, dict[str, float]]:
-    """Levenberg–Marquardt on the selected edges from ``init``; returns poses and stats."""
+    """Levenberg–Marquardt on the selected edges from ``init``; returns poses and stats
+    (``iterations``, ``cost_initial``, ``cost``; ``converged`` 0 where the iterations ran out
+    before the relative decrease of the cost fell under ``tol``, with the last accepted step's
+    decrease in ``last_rel_decrease``)."""
     sel = np.flatnonzero(edges)
     src, dst, Z = graph.src[sel], graph.dst[sel], graph.Z[sel]
     U = _chol_upper(graph.info[sel])
@@ -215,6 +218,7 @@ def solve(graph: PoseGraph, edges: NDArray[np.bool_], init: F, *, max_iters: int
     first = cost
     it = 0
     fac: Factor | None = None
+    converged, rel = False, float("nan")
     for it in range(1, max_iters + 1):  # noqa: B007
         H, g = normal_equations(lin, src, dst, n, lam, pattern)
         if fac is None:
@@ -230,9 +234,12 @@ def solve(graph: PoseGraph, edges: NDArray[np.bool_], init: F, *, max_iters: int
             P, lin, cost = P_new, lin_new, new_cost
             lam = max(lam / 3.0, 1e-9)
             if rel < tol:
+                converged = True
                 break
         else:
             lam *= 10.0
-            if lam > 1e8:
+            if lam > 1e8:  # no step lowers the cost: a minimum, to numerical precision
+                converged = True
                 break
-    return P, {"iterations": float(it), "cost_initial": first, "cost": cost}
+    return P, {"iterations": float(it), "cost_initial": first, "cost": cost,
+               "converged": float(converged), "last_rel_decrease": rel}

@@ -203,6 +203,8 @@ def verify_against_map(result: LoopAudit) -> None:
     was_in = in_map.copy()  # in the map in some round
     rounds = 0
 
+    last: dict[str, float] = {}  # the stats of the last map's solve
+
     def run_rounds(in_map: NDArray[np.bool_], P: F, first: int
                    ) -> tuple[NDArray[np.bool_], F, dict[str, F], int]:
         res: dict[str, F] = {}
@@ -219,9 +221,11 @@ def verify_against_map(result: LoopAudit) -> None:
                 P_chain, st_chain = solve(g, edges, P, tol=1e-6)
                 P, st = solve(g, edges, chordal_init(g, edges, P), tol=1e-6)
                 if st_chain["cost"] <= st["cost"]:
-                    P = P_chain
+                    P, st = P_chain, st_chain
             else:
-                P, _ = solve(g, edges, P, tol=1e-6)
+                P, st = solve(g, edges, P, tol=1e-6)
+            last.clear()
+            last.update(st)
             res = map_test(result, P, in_map, seed=r)
             # admit a loop only once its test had power: map σ small enough to refute a lie
             # of a few fold_m (5.5 σ at p = 1e-6); a passing loop already in the map stays
@@ -243,6 +247,14 @@ def verify_against_map(result: LoopAudit) -> None:
             in_map, P, res, more = run_rounds(in_map | extra, P, rounds + 1)
             rounds = more
     result.map_poses = P
+    if last and not last.get("converged", 1.0):
+        result.notes.append(
+            f"the last map's solve stopped at its {int(last['iterations'])}-iteration cap before "
+            f"converging (cost {last['cost']:.6g}, still falling by "
+            f"{last['last_rel_decrease']:.1e} of itself per iteration): the loops were tested "
+            "against an unconverged map, so a loop near the test's line may read differently "
+            "against the optimum. Very stiff or mutually inconsistent information, or false loops "
+            "in the map, slow the optimiser this way")
     t["map_residual_m"] = res["residual_m"]
     t["map_residual_deg"] = res["residual_deg"]
     t["map_chi2"] = res["T2"]
