@@ -43,6 +43,7 @@ from frontdiag.loops import lie
 from frontdiag.loops.init import chordal_init
 from frontdiag.loops.solve import (
     Factor,
+    Linearised,
     _chol_upper,
     linearise,
     normal_equations,
@@ -72,7 +73,9 @@ def map_test(result: LoopAudit, P: F, in_map: NDArray[np.bool_], seed: int = 0) 
     lin_all = linearise(P, g.src, g.dst, g.Z, U_all, n)
     e_all = lin_all.r.reshape(-1, k)
     e_all = np.einsum("mij,mj->mi", np.linalg.inv(U_all), e_all)
-    lin = linearise(P, g.src[sel], g.dst[sel], g.Z[sel], U_all[sel], n)
+    # the map's edges are a subset of every edge: take their linearisation from lin_all
+    lin = Linearised(r=lin_all.r.reshape(-1, k)[sel].ravel(), U=U_all[sel],
+                     Je_i=lin_all.Je_i[sel], Je_j=lin_all.Je_j[sel])
     H, _ = normal_equations(lin, g.src[sel], g.dst[sel], n, 0.0)
     fac = Factor(H)
     rng = np.random.default_rng(seed)
