@@ -3,8 +3,9 @@
 Levenberg–Marquardt from the odometry chain can stop far from the optimum when the chain has
 drifted: on the intel graph (1228 edges) it is at a cost of 90 117 after its 50 iterations
 (14 677 after 200, still descending) against 216 from this start, a map 6.6 m (ATE) away from
-the optimum, and every loop tested against that map reads as wrong. The chordal relaxation (Martinec & Pajdla 2007; Carlone,
-Tron, Daniilidis & Dellaert 2015) avoids the non-convexity of the rotations:
+the optimum, and every loop tested against that map reads as wrong. The chordal relaxation
+(Martinec & Pajdla 2007; Carlone, Tron, Daniilidis & Dellaert 2015) avoids the non-convexity
+of the rotations:
 
 1. rotations: minimise Σ w ‖R_j − R_i R_ij‖²_F over unconstrained d×d matrices (linear least
    squares, the rows decouple: one factorisation, d solves), then project each onto SO(d) by

@@ -82,23 +82,6 @@ def adjoint(T: F) -> F:
     return out
 
 
-def ad(xi: F) -> F:
-    """ad(ξ), the adjoint of the Lie algebra, for tangent vectors ordered translation first:
-    (..., k) -> (..., k, k). ``ad(ξ) η`` is the bracket [ξ, η]."""
-    k = xi.shape[-1]
-    out = np.zeros((*xi.shape[:-1], k, k))
-    if k == 3:
-        rho, th = xi[..., :2], xi[..., 2]
-        out[..., 0, 1], out[..., 1, 0] = -th, th
-        out[..., 0, 2], out[..., 1, 2] = rho[..., 1], -rho[..., 0]
-        return out
-    W = _skew(xi[..., 3:])
-    out[..., :3, :3] = W
-    out[..., :3, 3:] = _skew(xi[..., :3])
-    out[..., 3:, 3:] = W
-    return out
-
-
 def _series(th: F, exact: F, small: F) -> F:
     """``exact`` where |θ| is not small, else its Taylor value ``small`` (same shapes)."""
     return np.where(np.abs(th) < 1e-4, small, exact)
@@ -112,7 +95,7 @@ def right_jacobian_inv(xi: F) -> F:
     on the diagonal. SE(3): J_r(ξ) = J_l(−ξ), and J_l = [[J, Q], [0, J]] with the SO(3) left
     Jacobian J and Barfoot's Q(ρ, φ) (Barfoot 2017, "State Estimation for Robotics",
     sec. 7.1.5), inverted block-wise: [[J⁻¹, −J⁻¹QJ⁻¹], [0, J⁻¹]], J⁻¹ in closed form. To first
-    order it is ``I + ad(ξ)/2``, which is off by tenths at the radians of a false loop's
+    order it is ``I + ad(ξ)/2`` (ad the adjoint of the Lie algebra), which is off by tenths at the radians of a false loop's
     residual."""
     k = xi.shape[-1]
     out = np.zeros((*xi.shape[:-1], k, k))

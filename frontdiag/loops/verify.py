@@ -216,10 +216,10 @@ def verify_against_map(result: LoopAudit) -> None:
             edges = result.odometry.copy()
             edges[loops[in_map]] = True
             if r == 1:
-                # from the odometry chain and from the chordal start, keeping the lower
-                # minimum: the chain's was 6.6 m from the optimum on intel after 50
-                # iterations, the chordal one (27 false loops in the first map) ended at a 6 %
-                # higher cost on sphere2500;
+                # from the odometry chain and from the chordal start, keeping the lower cost:
+                # the chain's was 6.6 m from the optimum on intel after 50 iterations. With
+                # false loops in the first map both can stop at the cap, and the lower capped
+                # cost need not be the right basin (sphere2500, docs/loops.md "Measured");
                 # later rounds start from the map before them
                 P_chain, st_chain = solve(g, edges, P, tol=1e-6)
                 P, st = solve(g, edges, chordal_init(g, edges, P), tol=1e-6)
