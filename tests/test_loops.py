@@ -709,3 +709,59 @@ def test_a_vertex_quaternion_with_a_huge_component_is_normalised(tmp_path: Path)
     assert g.initial is not None
     assert np.allclose(g.initial[1][:3, :3], np.eye(3))
     assert main(["loops", str(tmp_path / "v.g2o"), "--quiet"]) in (0, 1)
+
+
+@pytest.mark.parametrize("restart", [True, False])
+def test_a_round_that_dropped_loops_restarts_from_the_chordal_start(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, restart: bool) -> None:
+    """The false loop (20 -> 26, 1 m off) passes its chain and enters the first map; the next
+    round drops it. LM from the map it bent can stop at a minimum of its basin: here the solve
+    from the previous map is made to return such a minimum (lap 2 turned by 90°, reported as
+    converged). The round also solves from the chordal start of its own loops and keeps that
+    far lower minimum, so every true loop is kept, as without the trap. Without the restart
+    the true loops are tested against the folded map and refused."""
+    import frontdiag.loops.verify as V
+    from frontdiag.loops import lie
+    from frontdiag.loops.solve import solve
+
+    spec = [(k, 40 + k, 0.0) for k in range(0, 40, 2)] + [(20, 26, 1.0)]
+    g = read_graph(_square_graph(tmp_path / "sq.g2o", spec))
+    clean = audit(g).table
+    assert (clean["verdict"] == "ok").sum() == 20  # the 20 true loops, and only they
+    assert clean.set_index(["i", "j"]).loc[(20, 26), "verdict"] == "fail"
+
+    starts: list[np.ndarray] = []  # kept alive, so that identity tells them apart
+    real_init = V.chordal_init
+
+    def chordal(*a, **k):  # type: ignore[no-untyped-def]
+        out = real_init(*a, **k)
+        starts.append(out)
+        return out
+
+    sets: list[np.ndarray] = []  # the edge sets of the rounds so far
+
+    def trapped(graph, edges, init, **k):  # type: ignore[no-untyped-def]
+        P, st = solve(graph, edges, init, **k)
+        if not sets or not np.array_equal(sets[-1], edges):
+            sets.append(edges.copy())
+        dropped = len(sets) > 1 and (sets[-2] & ~edges).any()
+        if dropped and not any(init is s_ for s_ in starts):  # from the map before: fold lap 2 by 90°
+            turn = lie.se2(np.array([0.0]), np.array([0.0]), np.array([np.pi / 2]))[0]
+            P = P.copy()
+            P[40:] = P[40] @ turn @ lie.inv(P[40]) @ P[40:]
+            _, st = solve(graph, edges, P, max_iters=0)
+            st["converged"] = 1.0
+        return P, st
+
+    monkeypatch.setattr(V, "chordal_init", chordal)
+    monkeypatch.setattr(V, "solve", trapped)
+    if not restart:
+        monkeypatch.setattr(V, "RESTART_GAIN", 1.0)  # a restart never lowers the cost enough
+    t = audit(g).table
+    true = ~((t["i"] == 20) & (t["j"] == 26))
+    if restart:
+        assert (t.loc[true, "verdict"] == "ok").all()
+        assert t.loc[~true, "verdict"].eq("fail").all()
+    else:
+        assert (t.loc[true, "verdict"] != "ok").sum() >= 5
+
