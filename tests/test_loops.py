@@ -453,6 +453,18 @@ def _two_lap_square(path: Path, side: int, loops: list[tuple[int, int, int]], se
     return path
 
 
+
+def _rules_switched_off(tmp_path: Path, param: str):  # type: ignore[no-untyped-def]
+    """The default loop rules with the boolean parameter ``param`` set to false."""
+    from frontdiag.loops.rules import default_loop_rules_file, load_loop_rules
+
+    text = default_loop_rules_file().read_text()
+    on = f"{param} = {{ value = true,"
+    assert on in text
+    path = tmp_path / f"no_{param}.toml"
+    path.write_text(text.replace(on, f"{param} = {{ value = false,"))
+    return load_loop_rules(path)
+
 def test_clusters_the_map_cannot_test_alone_are_verified_by_each_other(tmp_path: Path) -> None:
     """Two laps of a 30 m square: short loops within each lap (their chains are certain, so
     they build the first map), and three clusters of five loops from lap 1 to lap 2, each too
@@ -463,19 +475,13 @@ def test_clusters_the_map_cannot_test_alone_are_verified_by_each_other(tmp_path:
     holding the other clusters, A and B pass with power and F is refuted (a cluster whose
     test map holds F may fail it; it then joins in the rounds, once the map holds the other
     true cluster)."""
-    from frontdiag.loops.rules import default_loop_rules_file, load_loop_rules
-
     lap = 120
     A = [(i, i + lap, i + lap) for i in range(0, 10, 2)]
     B = [(i, i + lap, i + lap) for i in range(40, 50, 2)]
     F = [(i, i + lap + 8, i + lap) for i in range(60, 70, 2)]
     short = [(k, k + 4, k + 4) for k in range(5, 2 * lap - 5, 20)]
     g = read_graph(_two_lap_square(tmp_path / "sq.g2o", 30, A + B + F + short))
-    text = default_loop_rules_file().read_text()
-    assert "corroborate = { value = true," in text
-    (tmp_path / "off.toml").write_text(
-        text.replace("corroborate = { value = true,", "corroborate = { value = false,"))
-    off = audit(g, load_loop_rules(tmp_path / "off.toml")).table
+    off = audit(g, _rules_switched_off(tmp_path, "corroborate")).table
     on = audit(g).table
     long_ = (off["j"] - off["i"]) > 10
     assert long_.sum() == 15
@@ -765,3 +771,39 @@ def test_a_round_that_dropped_loops_restarts_from_the_chordal_start(
     else:
         assert (t.loc[true, "verdict"] != "ok").sum() >= 5
 
+
+def test_a_consistent_group_of_false_loops_in_the_first_map_is_screened_out(
+        tmp_path: Path) -> None:
+    """Two laps of a 30 m square with noisy odometry: no chain is certain enough to test a loop
+    with power (chain σ ~3 m), so the first map is seeded with the pair test's groups. Three
+    true clusters of five loops join lap 1 to lap 2, and F, five loops at poses 60-68, claims
+    lap 2 sits 8 m further along: consistent with itself, and the pair test keeps it over the
+    true cluster at poses 90-98 that it conflicts with. In the first map F bends the solution
+    and is kept to the end. Tested against the map without it, F is refuted, leaves the map
+    before the rounds, and every true loop is kept."""
+    lap = 120
+    T = [(i, i + lap, i + lap) for s0 in (0, 30, 90) for i in range(s0, s0 + 10, 2)]
+    F = [(i, i + lap + 8, i + lap) for i in range(60, 70, 2)]
+    g = read_graph(_two_lap_square(tmp_path / "sq.g2o", 30, T + F))
+    off = audit(g, _rules_switched_off(tmp_path, "screen_groups")).table
+    on_audit = audit(g)
+    on = on_audit.table
+    is_f = off["i"].between(60, 69).to_numpy()
+    # the premise: no chain has power, and without the screen the alias is kept
+    assert (off["chain_sigma_m"] > 2.0).all()
+    assert (off.loc[is_f, "verdict"] == "ok").all()
+    assert (on.loc[is_f, "verdict"] == "fail").all()
+    assert (on.loc[is_f, "map_residual_m"] > 6.0).all()
+    assert (on.loc[~is_f, "verdict"] == "ok").all()
+    assert not any("not screened" in n for n in on_audit.notes)
+    # over its budget the screen is skipped, and said so: 2 groups x 240 poses x 9 = 4320
+    from frontdiag.loops.rules import default_loop_rules_file, load_loop_rules
+
+    text = default_loop_rules_file().read_text()
+    assert "screen_budget = { value = 500000," in text
+    (tmp_path / "small.toml").write_text(
+        text.replace("screen_budget = { value = 500000,", "screen_budget = { value = 2000,"))
+    skipped = audit(g, load_loop_rules(tmp_path / "small.toml"))
+    pd.testing.assert_series_equal(skipped.table["verdict"], off["verdict"])
+    assert any("not screened (2 to test" in n and "4.32e+03 against" in n
+               for n in skipped.notes)

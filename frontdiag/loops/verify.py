@@ -182,6 +182,68 @@ def _corroborate(result: LoopAudit, P: F, in_map: NDArray[np.bool_], res: dict[s
     return out
 
 
+def _leave_out(result: LoopAudit, P: F, in_map: NDArray[np.bool_], mine: NDArray[np.bool_],
+               seed: int) -> tuple[float, float]:
+    """Median p and T² of the loops ``mine`` against the map of ``in_map`` without them,
+    solved from ``P``."""
+    rest = in_map & ~mine
+    edges = result.odometry.copy()
+    edges[result.table["edge"].to_numpy()[rest]] = True
+    Pg, _ = solve(result.graph, edges, P, tol=1e-6)
+    res = map_test(result, Pg, rest, seed=seed)
+    return float(np.median(res["p"][mine])), float(np.median(res["T2"][mine]))
+
+
+def screened_groups(group: NDArray[np.int64], in_map: NDArray[np.bool_]) -> list[int]:
+    """The pair-test groups of the map that the screen tests: every group but one holding
+    half the map's loops or more (the variance factor, and with it every test, assumes the
+    loops in the map are mostly true, so such a group is not tested against the rest)."""
+    ids, counts = np.unique(group[in_map], return_counts=True)
+    return [int(g) for g, c in zip(ids, counts, strict=True) if g >= 0 and 2 * c < in_map.sum()]
+
+
+def _screen_groups(result: LoopAudit, P: F, in_map: NDArray[np.bool_], p_alarm: float
+                   ) -> NDArray[np.bool_]:
+    """The first map's loops, less the pair-test groups that the map of the others refutes.
+
+    Used when the first map is seeded with the pair test's groups (the chains too uncertain to
+    test loops with power): a group of mutually consistent false loops (an alias seen over
+    several frames) passes the pair test like a true group, and in the map it bends the
+    least-squares solution and inflates the variance factor, so that the rounds cannot refute
+    it. Each group is tested against the map solved without it, from the first map: the
+    leave-one-out residual of data snooping for a group of observations (Baarda 1968), with
+    the pair test's groups as the clusters of RRR's inter-cluster check (Latif, Cadena & Neira
+    2013). A group is refuted when the median of its loops' p is under ``p_alarm``. A false
+    group bends the map that the others are tested against, so a true group can read refuted
+    beside it: the refuted groups leave one at a time, the most refuted first (lowest median
+    p, then highest median T²), and the others are tested again against the map without it.
+    """
+    t = result.table
+    group = t["group"].to_numpy()
+    out = in_map.copy()
+    cand = {}
+    for gid in screened_groups(group, in_map):
+        p, T2 = _leave_out(result, P, out, in_map & (group == gid), seed=gid + 1)
+        if p < p_alarm:
+            cand[gid] = (p, -T2)
+    while cand:
+        worst = min(cand, key=lambda c: (cand[c], c))
+        del cand[worst]
+        out &= group != worst
+        if not cand:
+            break
+        edges = result.odometry.copy()
+        edges[t["edge"].to_numpy()[out]] = True
+        P, _ = solve(result.graph, edges, P, tol=1e-6)
+        for gid in list(cand):
+            p, T2 = _leave_out(result, P, out, out & (group == gid), seed=int(gid) + 1)
+            if p < p_alarm:
+                cand[gid] = (p, -T2)
+            else:
+                del cand[gid]
+    return out
+
+
 def verify_against_map(result: LoopAudit) -> None:
     """Run the rounds and fold their outcome into the table's verdicts (module doc)."""
     t = result.table
@@ -201,8 +263,12 @@ def verify_against_map(result: LoopAudit) -> None:
     # than the chain did: the sampled map test is weaker than the chain's chi2 test (heavier
     # tails), so against a map no stiffer than the chain it would overrule a stronger refusal
     chain_refused = failed & (t["rule"] == rules.by_statistic("chi2").id).to_numpy()
+    screen = bool(r3.param("screen_groups")) if "screen_groups" in r3.params else False
+    screen_budget = float(r3.param("screen_budget")) if "screen_budget" in r3.params \
+        else float("inf")
     in_map = ~failed & (chain_sigma <= fold_m)
-    if in_map.sum() < MIN_VARIANCE_LOOPS:
+    seeded_by_groups = bool(in_map.sum() < MIN_VARIANCE_LOOPS)
+    if seeded_by_groups:
         # too few chain-confirmed loops to estimate the variance factor (the first map would
         # be the odometry and a loop or two, on the file's covariances): seed with the loops
         # the pair test grouped instead
@@ -213,6 +279,21 @@ def verify_against_map(result: LoopAudit) -> None:
     rounds = 0
 
     last: dict[str, float] = {}  # the stats of the last map's solve
+
+    def over_budget(in_map: NDArray[np.bool_]) -> bool:
+        """Whether the screen's solves (one per group, each over every pose) exceed
+        ``screen_budget``; said in the notes when they do."""
+        n_groups = len(screened_groups(t["group"].to_numpy(), in_map))
+        work = n_groups * g.n_vertices * g.k**2
+        if work <= screen_budget:
+            return False
+        result.notes.append(
+            f"the first map's pair-test groups were not screened ({n_groups} to test, each one "
+            f"solve of the {g.n_vertices}-pose graph: {work:.3g} against FD-LOP-003's "
+            f"screen_budget {screen_budget:.3g}): a group of mutually consistent false loops in "
+            "the first map can then be kept. Raise screen_budget in a rules file (--rules) to "
+            "screen them, at the cost of that many solves")
+        return True
 
     def run_rounds(in_map: NDArray[np.bool_], P: F, first: int
                    ) -> tuple[NDArray[np.bool_], F, dict[str, F], int]:
@@ -238,6 +319,14 @@ def verify_against_map(result: LoopAudit) -> None:
                 if st_c["cost"] < line:
                     P_warm, st_warm = P_c, st_c
             P, st = P_warm, st_warm
+            if r == 1 and seeded_by_groups and screen and not over_budget(in_map):
+                # on the first map, where every group the pair test formed is in (screened on
+                # later maps, after true loops beside the false groups were swamped, intel with
+                # 50 % grouped false loops kept 10 of 128 false loops instead of none)
+                kept = _screen_groups(result, P, in_map, p_alarm)
+                if (in_map & ~kept).any():  # the next round solves the map without them
+                    prev, in_map = in_map, kept
+                    continue
             last.clear()
             last.update(st)
             res = map_test(result, P, in_map, seed=r)
