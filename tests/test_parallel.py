@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 
 import pandas as pd
@@ -113,6 +114,21 @@ def test_interrupted_windows_keep_the_frames_before_the_interruption(
     _same_table(serial.table, par.table)
 
 
+@pytest.fixture
+def default_sigint() -> Iterator[None]:
+    """Python's own Ctrl-C handler for the test, whatever the test run inherited: a run
+    started in the background of a non-interactive shell (`cmd &`, nohup) has SIGINT ignored,
+    and frontdiag leaves an ignored signal ignored."""
+    import signal
+
+    saved = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, saved)
+
+
+@pytest.mark.usefixtures("default_sigint")
 def test_a_signal_inside_a_frame_stops_at_the_frame_boundary(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """Ctrl-C landing in the middle of frame 40 ends the pass after that frame, with the table
@@ -140,6 +156,7 @@ def test_a_signal_inside_a_frame_stops_at_the_frame_boundary(
     _same_table(short.table, stopped.table)
 
 
+@pytest.mark.usefixtures("default_sigint")
 def test_a_second_signal_stops_at_once() -> None:
     import os
     import signal
@@ -153,3 +170,21 @@ def test_a_second_signal_stops_at_once() -> None:
         with pytest.raises(KeyboardInterrupt):
             os.kill(os.getpid(), signal.SIGINT)
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_an_ignored_interrupt_stays_ignored() -> None:
+    """Under nohup (SIGINT ignored) the pass neither installs its handler nor stops."""
+    import os
+    import signal
+
+    from frontdiag.runner import frame_boundary_interrupts
+
+    saved = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        with frame_boundary_interrupts() as asked:
+            assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+            os.kill(os.getpid(), signal.SIGINT)
+            assert not asked()
+        assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, saved)
