@@ -794,7 +794,10 @@ def test_a_consistent_group_of_false_loops_in_the_first_map_is_screened_out(
     assert (off.loc[is_f, "verdict"] == "ok").all()
     assert (on.loc[is_f, "verdict"] == "fail").all()
     assert (on.loc[is_f, "map_residual_m"] > 6.0).all()
+    assert on.loc[is_f, "reason"].str.contains(
+        r"its pair-test group \(5 loops\) was taken out of the first map").all()
     assert (on.loc[~is_f, "verdict"] == "ok").all()
+    assert not on.loc[~is_f, "reason"].str.contains("taken out").any()
     assert not any("not screened" in n for n in on_audit.notes)
     # over its budget the screen is skipped, and said so: 2 groups x 240 poses x 9 = 4320
     from frontdiag.loops.rules import default_loop_rules_file, load_loop_rules

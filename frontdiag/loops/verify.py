@@ -203,7 +203,7 @@ def screened_groups(group: NDArray[np.int64], in_map: NDArray[np.bool_]) -> list
 
 
 def _screen_groups(result: LoopAudit, P: F, in_map: NDArray[np.bool_], p_alarm: float
-                   ) -> NDArray[np.bool_]:
+                   ) -> tuple[NDArray[np.bool_], dict[int, tuple[float, float]]]:
     """The first map's loops, less the pair-test groups that the map of the others refutes.
 
     Used when the first map is seeded with the pair test's groups (the chains too uncertain to
@@ -217,6 +217,7 @@ def _screen_groups(result: LoopAudit, P: F, in_map: NDArray[np.bool_], p_alarm: 
     group bends the map that the others are tested against, so a true group can read refuted
     beside it: the refuted groups leave one at a time, the most refuted first (lowest median
     p, then highest median T²), and the others are tested again against the map without it.
+    Returns the loops kept and, per group taken out, its median p and T² when it left.
     """
     t = result.table
     group = t["group"].to_numpy()
@@ -226,9 +227,11 @@ def _screen_groups(result: LoopAudit, P: F, in_map: NDArray[np.bool_], p_alarm: 
         p, T2 = _leave_out(result, P, out, in_map & (group == gid), seed=gid + 1)
         if p < p_alarm:
             cand[gid] = (p, -T2)
+    gone: dict[int, tuple[float, float]] = {}
     while cand:
         worst = min(cand, key=lambda c: (cand[c], c))
-        del cand[worst]
+        p_w, neg_T2 = cand.pop(worst)
+        gone[worst] = (p_w, -neg_T2)
         out &= group != worst
         if not cand:
             break
@@ -241,7 +244,7 @@ def _screen_groups(result: LoopAudit, P: F, in_map: NDArray[np.bool_], p_alarm: 
                 cand[gid] = (p, -T2)
             else:
                 del cand[gid]
-    return out
+    return out, gone
 
 
 def verify_against_map(result: LoopAudit) -> None:
@@ -279,6 +282,7 @@ def verify_against_map(result: LoopAudit) -> None:
     rounds = 0
 
     last: dict[str, float] = {}  # the stats of the last map's solve
+    screened: dict[int, tuple[float, float]] = {}  # groups the screen took out of the first map
 
     def over_budget(in_map: NDArray[np.bool_]) -> bool:
         """Whether the screen's solves (one per group, each over every pose) exceed
@@ -323,7 +327,8 @@ def verify_against_map(result: LoopAudit) -> None:
                 # on the first map, where every group the pair test formed is in (screened on
                 # later maps, after true loops beside the false groups were swamped, intel with
                 # 50 % grouped false loops kept 10 of 128 false loops instead of none)
-                kept = _screen_groups(result, P, in_map, p_alarm)
+                kept, gone = _screen_groups(result, P, in_map, p_alarm)
+                screened.update(gone)
                 if (in_map & ~kept).any():  # the next round solves the map without them
                     prev, in_map = in_map, kept
                     continue
@@ -427,6 +432,13 @@ def verify_against_map(result: LoopAudit) -> None:
             reason[i] = ("verified by other loops: the map was too loose between its poses "
                          "until it held other clusters of loops, against which it passed with "
                          f"power; {m}")
+    group = t["group"].to_numpy()
+    for gid, (p_g, T2_g) in screened.items():
+        mine = np.flatnonzero(group == gid)
+        took = (f"its pair-test group ({mine.size} loops) was taken out of the first map: "
+                f"against the map without it, median χ²={T2_g:.3g}, p={p_g:.2g}")
+        for i in mine.tolist():
+            reason[i] = f"{reason[i]}; {took}" if reason[i] else took
     t["verdict"] = verdict.astype(str)
     t["rule"] = rule.astype(str)
     t["reason"] = reason.astype(str)
