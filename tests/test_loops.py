@@ -810,3 +810,45 @@ def test_a_consistent_group_of_false_loops_in_the_first_map_is_screened_out(
     pd.testing.assert_series_equal(skipped.table["verdict"], off["verdict"])
     assert any("not screened (2 to test" in n and "4.32e+03 against" in n
                for n in skipped.notes)
+
+
+@pytest.mark.parametrize("first_map_capped", [False, True])
+def test_max_rounds_count_from_the_first_converged_map(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, first_map_capped: bool) -> None:
+    """With max_rounds = 1 the rounds stop one round after the first converged map. The false
+    loop (20 -> 26) swamps 8 true loops out of the second map; a third round takes them back.
+    When the first map converged, the rounds stop after the second and those 8 are left
+    unverified (warn); when the first map's solves stopped at the iteration cap, the count
+    starts at the second map, a third round runs, and every true loop is kept."""
+    import frontdiag.loops.verify as V
+    from frontdiag.loops.solve import solve
+
+    spec = [(k, 40 + k, 0.0) for k in range(0, 40, 2)] + [(20, 26, 1.0)]
+    g = read_graph(_square_graph(tmp_path / "sq.g2o", spec))
+    from frontdiag.loops.rules import default_loop_rules_file, load_loop_rules
+
+    text = default_loop_rules_file().read_text()
+    assert "max_rounds = { value = 8," in text
+    (tmp_path / "one.toml").write_text(
+        text.replace("max_rounds = { value = 8,", "max_rounds = { value = 1,"))
+    calls = [0]
+
+    def capped_first_map(graph, edges, init, **k):  # type: ignore[no-untyped-def]
+        calls[0] += 1
+        P, st = solve(graph, edges, init, **k)
+        if calls[0] <= 2:  # the first map's two solves (chain start, chordal start)
+            st = {**st, "converged": 0.0}
+        return P, st
+
+    if first_map_capped:
+        monkeypatch.setattr(V, "solve", capped_first_map)
+    res = audit(g, load_loop_rules(tmp_path / "one.toml"))
+    t = res.table
+    true = ~((t["i"] == 20) & (t["j"] == 26))
+    assert t.loc[~true, "verdict"].eq("fail").all()
+    if first_map_capped:
+        assert res.timings["map_rounds"] == 3
+        assert (t.loc[true, "verdict"] == "ok").all()
+    else:
+        assert res.timings["map_rounds"] == 2
+        assert (t.loc[true, "verdict"] == "warn").sum() == 8
