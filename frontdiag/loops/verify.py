@@ -6,9 +6,10 @@ most ``fold_m``, so a lie of a few ``fold_m`` would have been refuted). Each rou
 in rounds that dropped loops), tests every loop against that map, and the next map holds the
 loops that passed *with power* (the map's relative σ between their poses at most ``power_m``):
 the map stiffens round by round and a group of mutually consistent false loops, which no local
-test can refute, meets a map built without it. A true loop refused next to a false one (swamping) comes back
-once the false one is out. The rounds stop when the set no longer changes, or ``max_rounds``
-after the first map whose solve converged (after ``max_rounds`` if none has by then).
+test can refute, meets a map built without it. A true loop refused next to a false one
+(swamping) comes back once the false one is out. The rounds stop when the set no longer
+changes, or ``max_rounds`` after the first map whose solve converged (after ``max_rounds`` if
+none has by then).
 
 Loops that pass but never with power (the map too loose between their poses: a stretch that
 only they join) are then tested cluster by cluster against the map holding the other such
@@ -69,13 +70,20 @@ MIN_VARIANCE_LOOPS = 10  # loops in the map below which the variance factor is n
 RESTART_GAIN = 0.01
 
 
+def map_edges(result: LoopAudit, in_map: NDArray[np.bool_]) -> NDArray[np.bool_]:
+    """Edge mask of the map holding the odometry and the loops ``in_map`` (a mask over the
+    table's loops)."""
+    edges = result.odometry.copy()
+    edges[result.table["edge"].to_numpy()[in_map]] = True
+    return edges
+
+
 def map_test(result: LoopAudit, P: F, in_map: NDArray[np.bool_], seed: int = 0) -> dict[str, F]:
     """Residual of every loop against poses P, and its T² / p-value (see the module doc)."""
     g = result.graph
     loops = result.table["edge"].to_numpy()
     n, k = g.n_vertices, g.k
-    edges = result.odometry.copy()
-    edges[loops[in_map]] = True
+    edges = map_edges(result, in_map)
     sel = np.flatnonzero(edges)
     U_all = _chol_upper(g.info)
     lin_all = linearise(P, g.src, g.dst, g.Z, U_all, n)
@@ -168,15 +176,13 @@ def _corroborate(result: LoopAudit, P: F, in_map: NDArray[np.bool_], res: dict[s
     g = result.graph
     # every leave-one-cluster-out map starts from the map with every candidate in: one
     # cluster out moves it little, so each solve takes a few iterations
-    edges = result.odometry.copy()
-    edges[loops[in_map | cand]] = True
+    edges = map_edges(result, in_map | cand)
     P_all, _ = solve(g, edges, P, tol=1e-6)
     for c in clusters.tolist():
         mine = idx[label == c]
         test = in_map.copy()
         test[idx[label != c]] = True
-        edges = result.odometry.copy()
-        edges[loops[test]] = True
+        edges = map_edges(result, test)
         Pc, _ = solve(g, edges, P_all, tol=1e-4)
         rc = map_test(result, Pc, test, seed=int(loops[mine[0]]))
         ok = (rc["p"][mine] >= p_alarm) & (rc["map_sigma_m"][mine] <= power_m)
@@ -189,8 +195,7 @@ def _leave_out(result: LoopAudit, P: F, in_map: NDArray[np.bool_], mine: NDArray
     """Median p and T² of the loops ``mine`` against the map of ``in_map`` without them,
     solved from ``P``."""
     rest = in_map & ~mine
-    edges = result.odometry.copy()
-    edges[result.table["edge"].to_numpy()[rest]] = True
+    edges = map_edges(result, rest)
     Pg, _ = solve(result.graph, edges, P, tol=1e-6)
     res = map_test(result, Pg, rest, seed=seed)
     return float(np.median(res["p"][mine])), float(np.median(res["T2"][mine]))
@@ -237,11 +242,10 @@ def _screen_groups(result: LoopAudit, P: F, in_map: NDArray[np.bool_], p_alarm: 
         out &= group != worst
         if not cand:
             break
-        edges = result.odometry.copy()
-        edges[t["edge"].to_numpy()[out]] = True
+        edges = map_edges(result, out)
         P, _ = solve(result.graph, edges, P, tol=1e-6)
         for gid in list(cand):
-            p, T2 = _leave_out(result, P, out, out & (group == gid), seed=int(gid) + 1)
+            p, T2 = _leave_out(result, P, out, out & (group == gid), seed=gid + 1)
             if p < p_alarm:
                 cand[gid] = (p, -T2)
             else:
@@ -261,7 +265,6 @@ def verify_against_map(result: LoopAudit) -> None:
     power_m = float(r3.param("power_m"))
     overrule = float(r3.param("overrule_chain"))
     corroborate = bool(r3.param("corroborate")) if "corroborate" in r3.params else False
-    loops = t["edge"].to_numpy()
     failed = (t["verdict"] == "fail").to_numpy()
     chain_sigma = t["chain_sigma_m"].to_numpy()
     # a loop its chain refused comes back only against a map that knows more between its poses
@@ -285,6 +288,7 @@ def verify_against_map(result: LoopAudit) -> None:
 
     last: dict[str, float] = {}  # the stats of the last map's solve
     screened: dict[int, tuple[float, float]] = {}  # groups the screen took out of the first map
+    taken = np.zeros(len(t), bool)  # and their loops that were in it
 
     def over_budget(in_map: NDArray[np.bool_]) -> bool:
         """Whether the screen's solves (one per group, each over every pose) exceed
@@ -315,8 +319,7 @@ def verify_against_map(result: LoopAudit) -> None:
         end = first + max_rounds
         converged_once = False
         for r in itertools.count(first):
-            edges = result.odometry.copy()
-            edges[loops[in_map]] = True
+            edges = map_edges(result, in_map)
             P_warm, st_warm = solve(g, edges, P, tol=1e-6)
             if r == 1 or (prev is not None and (prev & ~in_map).any()
                           and st_warm.get("converged", 0.0)):
@@ -342,7 +345,8 @@ def verify_against_map(result: LoopAudit) -> None:
                 # 50 % grouped false loops kept 10 of 128 false loops instead of none)
                 kept, gone = _screen_groups(result, P, in_map, p_alarm)
                 screened.update(gone)
-                if (in_map & ~kept).any():  # the next round solves the map without them
+                taken[:] = in_map & ~kept
+                if taken.any():  # the next round solves the map without them
                     prev, in_map = in_map, kept
                     continue
             last.clear()
@@ -447,7 +451,7 @@ def verify_against_map(result: LoopAudit) -> None:
                          f"power; {m}")
     group = t["group"].to_numpy()
     for gid, (p_g, T2_g) in screened.items():
-        mine = np.flatnonzero(group == gid)
+        mine = np.flatnonzero(taken & (group == gid))
         took = (f"its pair-test group ({mine.size} loops) was taken out of the first map: "
                 f"against the map without it, median χ²={T2_g:.3g}, p={p_g:.2g}")
         for i in mine.tolist():
