@@ -1,5 +1,6 @@
-"""The reference worked numbers as oracles: spatial entropy (ch. 1), RANSAC iterations and
-noise-derived thresholds (ch. 3), and the pyramid's feature budget (ch. 1)."""
+"""Worked numbers as oracles: spatial entropy and the pyramid's feature budget
+(docs/derivations.md §2), RANSAC iterations and noise-derived thresholds (§4); the spread of
+inliers over the view two frames share."""
 
 from __future__ import annotations
 
@@ -9,17 +10,22 @@ import numpy as np
 import pytest
 
 from frontdiag.camera.features import (
+    ENTROPY_GRID,
     MIN_ENTROPY_POINTS,
     entropy_from_counts,
     level_budgets,
+    shared_entropy,
     spatial_entropy,
 )
 from frontdiag.camera.geometry import (
+    MIN_SHARED_CELLS,
     epipolar_threshold_px,
     homography_threshold_px,
     ransac_iters_required,
     ransac_iters_run,
+    shared_cells,
 )
+from frontdiag.records import Intrinsics
 
 
 @pytest.mark.parametrize(("counts", "expected"), [
@@ -61,6 +67,70 @@ def test_entropy_needs_enough_points_to_read_spread() -> None:
     at_floor = _uniform_entropies(MIN_ENTROPY_POINTS)
     assert np.percentile(at_floor, 1) > alarm + 0.1
     assert _uniform_entropies(MIN_ENTROPY_POINTS - 10).mean() < 0.74  # under "acceptable"
+
+
+def _yaw(deg: float) -> np.ndarray:
+    a = math.radians(deg)
+    return np.array([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]])
+
+
+def _turn(K: np.ndarray, deg: float, w: int, h: int, n: int = 400, seed: int = 1
+          ) -> tuple[np.ndarray, np.ndarray]:
+    """Correspondences of a camera turning on the spot: every point the two views share."""
+    rng = np.random.default_rng(seed)
+    H = K @ _yaw(deg) @ np.linalg.inv(K)
+    ref = rng.uniform((0, 0), (w, h), (20 * n, 2))
+    q = np.column_stack([ref, np.ones(len(ref))]) @ H.T
+    cur = q[:, :2] / q[:, 2:3]
+    seen = (q[:, 2] > 0) & (cur[:, 0] >= 0) & (cur[:, 0] < w) & (cur[:, 1] >= 0) & \
+        (cur[:, 1] < h)
+    return ref[seen][:n], cur[seen][:n]
+
+
+def test_a_turn_shares_the_band_its_views_overlap_in() -> None:
+    """Turning 44 deg left with a 54 deg field of view, the current view shares a band at its
+    right with the reference: the cells whose centres the reference also saw, and only those."""
+    w, h, f = 640, 480, 628.0  # 54 deg across
+    K = np.array([[f, 0, w / 2], [0, f, h / 2], [0, 0, 1.0]])
+    intr = Intrinsics(K=K, model="none", width=w, height=h)
+    ref, cur = _turn(K, 44.0, w, h)
+    shared = shared_cells(ref, cur, intr, w, h, ENTROPY_GRID)
+    assert shared is not None
+    cols, rows = ENTROPY_GRID
+    back = np.linalg.inv(K @ _yaw(44.0) @ np.linalg.inv(K))
+    for r in range(rows):
+        for c in range(cols):
+            p = back @ [(c + 0.5) * w / cols, (r + 0.5) * h / rows, 1.0]
+            u, v = p[:2] / p[2]
+            assert shared[r, c] == (p[2] > 0 and 0 <= u < w and 0 <= v < h), (r, c)
+    assert MIN_SHARED_CELLS <= shared.sum() <= 16  # a quarter of the view or less
+    # the points fill the shared band: near the clustering line over the whole grid (log2 of
+    # the band's cells over log2 48 bounds it), uniform over what is shared
+    assert spatial_entropy(cur, w, h)[0] < 0.66
+    assert shared_entropy(cur, shared, w, h) > 0.95
+    # standing still shares the whole view; turning past the field of view shares nothing
+    still = shared_cells(ref, ref, intr, w, h, ENTROPY_GRID)
+    assert still is not None and still.all()
+    ref2, cur2 = _turn(K, 50.0, w, h)
+    assert shared_cells(ref2, cur2, intr, w, h, ENTROPY_GRID) is None  # under 8 cells
+    # a wide lens turning past 90 deg of its reference's outline: centres behind it are unseen
+    K2 = np.array([[320.0, 0, w / 2], [0, 320.0, h / 2], [0, 0, 1.0]])
+    ref3, cur3 = _turn(K2, 60.0, w, h)
+    wide = shared_cells(ref3, cur3, Intrinsics(K=K2, model="none", width=w, height=h), w, h,
+                        ENTROPY_GRID)
+    assert wide is not None and MIN_SHARED_CELLS <= wide.sum() < 24
+    assert not wide[:, 0].any()  # the left edge looks where the reference never did
+
+
+def test_a_small_patch_stays_clustered_over_a_shared_view() -> None:
+    """Inliers in one corner of a view the reference fully shares read as clustered both
+    ways: the shared view changes nothing where the frames overlap fully."""
+    w, h = 640, 480
+    rng = np.random.default_rng(3)
+    patch = rng.uniform((0, 0), (120, 100), (200, 2))
+    shared = np.ones(ENTROPY_GRID[::-1], bool)
+    assert shared_entropy(patch, shared, w, h) == pytest.approx(spatial_entropy(patch, w, h)[0])
+    assert shared_entropy(patch, shared, w, h) < 0.6
 
 
 @pytest.mark.parametrize(("s", "w", "p", "n"), [

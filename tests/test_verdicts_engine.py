@@ -331,6 +331,25 @@ def test_a_turn_explained_by_rotation_is_rotation_whatever_h_over_e(ruleset, he,
     assert not want or any("rotation alone explains" in ln for ln in lines)
 
 
+@pytest.mark.parametrize(("shared", "want"), [
+    (np.nan, []),                 # the shared view unknown: inliers read over the whole grid
+    (0.85, ["pure_rotation"]),    # the inliers fill the band both shots saw: spread
+    (0.45, []),                   # a patch inside the band: clustered however it is read
+])
+def test_inliers_in_the_overlap_of_a_turn_are_read_over_that_overlap(ruleset, shared,
+                                                                     want) -> None:
+    """A panorama shot turned 40 deg shares a third of its view with the one before, so its
+    inliers read 0.43 over the whole grid, under the 0.6 line below which a homography fits
+    whatever the scene. Over the part of the view both shots saw they are spread."""
+    row = {"h_over_e": 0.87, "parallax_med_deg": 6.0, "parallax_med_px": 50.0, "rot_deg": 40.0,
+           "rot_only_px": 1.5, "rot_focal_scale": 1.0, "entropy_inliers_norm": 0.43,
+           "entropy_inliers_shared_norm": shared}
+    lines = _rotation_reading(ruleset, row, want)
+    assert any("not read: entropy" in ln for ln in lines) == (not want)
+    assert any("over the part the reference keyframe also saw" in ln for ln in lines) == \
+        bool(want)
+
+
 @pytest.mark.parametrize(("he", "rot", "scale", "want"), [
     (0.7, 20.0, 1.1, ["pure_rotation"]),   # a turn through a K 10 % off: a rotation
     (0.7, 20.0, 2.0, []),                  # best at the longest focal searched: not a turn

@@ -58,6 +58,14 @@ def grid_counts(xy: np.ndarray, width: int, height: int,
     return np.bincount(cy * cols + cx, minlength=cols * rows).reshape(rows, cols)
 
 
+def shared_entropy(xy: np.ndarray, shared: np.ndarray, width: int, height: int,
+                   grid: tuple[int, int] = ENTROPY_GRID) -> float:
+    """``spatial_entropy`` over the cells both views saw (``shared``, ``(rows, cols)`` bool):
+    H / log2(cells). Points in an unshared cell (at the edge of the overlap) add their cell."""
+    counts = grid_counts(xy, width, height, grid)
+    return entropy_from_counts(counts[shared | (counts > 0)])
+
+
 def entropy_from_counts(counts: np.ndarray) -> float:
     """H / Hmax for a histogram of cell counts (Hmax = log2 of the number of cells)."""
     counts = np.asarray(counts, dtype=np.float64).ravel()

@@ -56,12 +56,14 @@ import cv2
 import numpy as np
 
 from frontdiag.camera.features import (
+    ENTROPY_GRID,
     MIN_ENTROPY_POINTS,
     Features,
     OrbExtractor,
     coarse_texture,
     entropy_from_counts,
     grid_counts,
+    shared_entropy,
     spatial_entropy,
 )
 from frontdiag.camera.geometry import (
@@ -70,6 +72,7 @@ from frontdiag.camera.geometry import (
     ransac_iters_required,
     ransac_iters_run,
     rotation_only_fit,
+    shared_cells,
     two_view,
     undistort_points,
 )
@@ -156,7 +159,8 @@ class _Keyframe:
 def _row_template() -> dict[str, Any]:
     return {
         "n_keypoints": 0, "n_weak_keypoints": 0, "keypoint_fill": NAN, "entropy_norm": NAN,
-        "occupied_cells": 0, "entropy_inliers_norm": NAN, "n_coarse_keypoints": 0,
+        "occupied_cells": 0, "entropy_inliers_norm": NAN, "entropy_inliers_shared_norm": NAN,
+        "n_coarse_keypoints": 0,
         "coarse_hull_share": NAN,
         "n_putative": 0, "ratio_reject_rate": NAN, "ratio_ambiguous_rate": NAN, "n_matches": 0,
         "ref_frame": -1, "n_ref_matches": 0, "tracked_share": NAN,
@@ -305,8 +309,12 @@ class CameraFrontend:
         row.update(inliers_h=tv.inliers_h)
         if tv.inlier_mask is not None and np.count_nonzero(tv.inlier_mask) >= MIN_ENTROPY_POINTS:
             h, w = cur.gray.shape[:2]
-            row["entropy_inliers_norm"] = spatial_entropy(cur.feats.xy[sel[tv.inlier_mask]],
-                                                          w, h)[0]
+            xy_in = cur.feats.xy[sel[tv.inlier_mask]]
+            row["entropy_inliers_norm"] = spatial_entropy(xy_in, w, h)[0]
+            shared = shared_cells(p_ref[tv.inlier_mask], p_cur[tv.inlier_mask],
+                                  self.intrinsics, w, h, ENTROPY_GRID)
+            if shared is not None:
+                row["entropy_inliers_shared_norm"] = shared_entropy(xy_in, shared, w, h)
         if self._K is None:
             row["status"] = "no_intrinsics"
             return False

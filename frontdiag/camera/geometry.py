@@ -10,6 +10,7 @@ sigma per coordinate, a squared residual / sigma^2 is chi-square with d degrees 
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -82,6 +83,80 @@ def undistort_points(xy: np.ndarray, intr: Intrinsics | None) -> np.ndarray:
     else:  # plumb_bob, rational_polynomial: OpenCV's model takes 4, 5, 8, 12 or 14 coefficients
         out = cv2.undistortPoints(pts, K, D, P=K)
     return out.reshape(-1, 2)
+
+
+# Fewest grid cells a shared view must cover for the inliers' spread over it to be read: a sixth
+# of the 8x6 grid. Under that the two views barely overlap and the spread says nothing.
+MIN_SHARED_CELLS = 8
+_BORDER_SAMPLES = 16  # points per image side traced through the homography
+
+
+@functools.lru_cache(maxsize=16)
+def _view_outline(key: tuple[int, int, tuple[int, int], bytes, bytes, str]
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """(outline of the image, (M, 2); centres of the grid's cells, (cells, 2)), undistorted.
+    ``key`` is (width, height, grid, K bytes, D bytes, model): one per camera."""
+    width, height, grid, kb, db, model = key
+    intr = Intrinsics(K=np.frombuffer(kb).reshape(3, 3), D=np.frombuffer(db), model=model)
+    s = np.linspace(0.0, 1.0, _BORDER_SAMPLES, endpoint=False)
+    w1, h1 = width - 1.0, height - 1.0
+    border = np.concatenate([np.column_stack([s * w1, np.zeros_like(s)]),
+                             np.column_stack([np.full_like(s, w1), s * h1]),
+                             np.column_stack([w1 - s * w1, np.full_like(s, h1)]),
+                             np.column_stack([np.zeros_like(s), h1 - s * h1])])
+    cols, rows = grid
+    cx = (np.arange(cols) + 0.5) * (width / cols)
+    cy = (np.arange(rows) + 0.5) * (height / rows)
+    centres = np.array([(x, y) for y in cy for x in cx], np.float64)
+    return undistort_points(border, intr), undistort_points(centres, intr)
+
+
+def _inside(poly: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Even-odd rule: which points lie inside the closed polygon (vertices in order)."""
+    x0, y0 = poly[:, 0][None, :], poly[:, 1][None, :]
+    x1, y1 = np.roll(poly[:, 0], -1)[None, :], np.roll(poly[:, 1], -1)[None, :]
+    px, py = pts[:, 0][:, None], pts[:, 1][:, None]
+    straddle = (y0 > py) != (y1 > py)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x_cross = x0 + (py - y0) * (x1 - x0) / (y1 - y0)
+    return np.count_nonzero(straddle & (px < x_cross), axis=1) % 2 == 1
+
+
+def shared_cells(und_ref: np.ndarray, und_cur: np.ndarray, intr: Intrinsics | None,
+                 width: int, height: int, grid: tuple[int, int]) -> np.ndarray | None:
+    """Cells of the current image's ``cols x rows`` grid that the reference view also saw.
+
+    Each cell's centre (undistorted) is taken back through the least-squares homography of the
+    given correspondences (undistorted pixels, reference -> current); the cell is shared when it
+    lands in front of the reference camera and inside the reference image's outline
+    (undistorted). For a rotation the homography is exact; under translation it is the overlap
+    at the depth of the correspondences, which is what the inliers can cover. None when the
+    homography is singular or fewer than ``MIN_SHARED_CELLS`` cells are shared.
+    """
+    if len(und_ref) < 8:
+        return None
+    H, _ = cv2.findHomography(np.ascontiguousarray(und_ref, np.float64),
+                              np.ascontiguousarray(und_cur, np.float64), 0)
+    if H is None or not np.all(np.isfinite(H)) or abs(np.linalg.det(H)) < 1e-12:
+        return None
+    if intr is None or not intr.has_distortion or intr.model == "none":
+        key = (width, height, grid, np.eye(3).tobytes(), b"", "none")
+    else:
+        key = (width, height, grid, np.asarray(intr.K, np.float64).tobytes(),
+               np.asarray(intr.D, np.float64).ravel().tobytes(), intr.model)
+    outline, centres = _view_outline(key)
+    # H maps the reference's rays to the current's up to scale; a centre is in front of the
+    # reference camera when its ray there has the sign the correspondences' rays have
+    Hinv = np.linalg.inv(H)
+    q = np.column_stack([centres, np.ones(len(centres))]) @ Hinv.T
+    q_in = np.column_stack([und_cur, np.ones(len(und_cur))]) @ Hinv.T
+    front = q[:, 2] * np.sign(np.median(q_in[:, 2])) > 1e-12
+    seen = np.zeros(len(centres), bool)
+    seen[front] = _inside(outline, q[front, :2] / q[front, 2:3])
+    if np.count_nonzero(seen) < MIN_SHARED_CELLS:
+        return None
+    cols, rows = grid
+    return seen.reshape(rows, cols)
 
 
 @dataclass(frozen=True)

@@ -701,7 +701,7 @@ def _he_parallax(df: pd.DataFrame, p: Params) -> np.ndarray:
         if "min_entropy" in p:
             # features crowded into a small cone are locally planar: a homography fits them
             # whatever the scene, so H/E only reads the scene when the features are spread
-            hit &= constraint_entropy(df) >= p["min_entropy"]
+            hit &= quadrant_entropy(df) >= p["min_entropy"]
         if "min_parallax_px" in p:
             # below it a 3D scene fits H nearly as well as E: the reading cannot tell (a table
             # without parallax_med_px is read as before)
@@ -790,11 +790,22 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
         out.append(f"not read: the parallax is {px:.2g} px in the image, under {floor:.2g} px "
                    "(twice the homography threshold), so a 3D scene also fits H nearly as well "
                    "as E (low resolution or short baseline)")
-    ent = float(np.fmin(_v(row, "entropy_norm"), _v(row, "entropy_inliers_norm")))
+    ent_sh = _v(row, "entropy_inliers_shared_norm")
+    ent = float(quadrant_entropy(pd.DataFrame([{
+        m: _v(row, m) for m in ("entropy_norm", "entropy_inliers_norm",
+                                "entropy_inliers_shared_norm")}]))[0])
+    where = ("inliers over the view shared with the reference keyframe"
+             if not np.isnan(ent_sh) else "inliers")
     if "min_entropy" in p and not ent >= p["min_entropy"]:
-        out.append(f"not read: entropy (keypoints or inliers, the lower) {_fmt(ent)} < "
+        out.append(f"not read: entropy (keypoints or {where}, the lower) {_fmt(ent)} < "
                    f"{p['min_entropy']:g}, clustered features fit a homography whatever the "
                    "scene (feature_clustering look-alike)")
+    elif "min_entropy" in p and not np.isnan(ent_sh) and \
+            _v(row, "entropy_inliers_norm") < p["min_entropy"]:
+        out.append(f"entropy of the inliers {_fmt(_v(row, 'entropy_inliers_norm'))} over the "
+                   f"whole view, {_fmt(ent_sh)} over the part the reference keyframe also saw "
+                   f">= {p['min_entropy']:g}: the inliers fill the shared view (a turn or a "
+                   "pass leaves the rest unseen), so they are spread, not clustered")
     if q == 3 and still:
         out.append(f"standing still: rotation {rot:.2g} deg < {p['still_rotation_deg']:g} and the "
                    f"points moved {px:.2g} px < {p['still_parallax_px']:g} px, within "
@@ -835,6 +846,23 @@ def constraint_entropy(df: pd.DataFrame) -> np.ndarray:
     """
     with np.errstate(invalid="ignore"):
         return np.fmin(col(df, "entropy_norm"), col(df, "entropy_inliers_norm"))
+
+
+def quadrant_entropy(df: pd.DataFrame) -> np.ndarray:
+    """The spread the H/E quadrant is read on: the lower of keypoint entropy and the inliers'
+    entropy over the view both frames share (over the whole view where the shared part is
+    unknown).
+
+    A homography fits features crowded into a small cone whatever the scene, so H/E reads the
+    scene only when the inliers are spread. Spread is judged over what the reference keyframe
+    also saw: a camera that turned 40 deg shares a third of its view, and inliers filling that
+    third are as spread as correspondences can be, while over the whole grid they read 0.4.
+    Under ``MIN_SHARED_CELLS`` (a sixth of the view) the shared part is unknown.
+    """
+    ent_in = col(df, "entropy_inliers_shared_norm")
+    ent_in = np.where(np.isnan(ent_in), col(df, "entropy_inliers_norm"), ent_in)
+    with np.errstate(invalid="ignore"):
+        return np.fmin(col(df, "entropy_norm"), ent_in)
 
 
 def _clustering(df: pd.DataFrame, p: Params) -> np.ndarray:
@@ -1036,7 +1064,8 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
     Check("he_parallax_quadrant", "H/E inlier ratio x median parallax separates pure "
           "rotation, a planar scene, a nearly stationary camera and healthy motion",
           "frame", "camera", ("h_over_e", "parallax_med_deg", "ref_frame", "entropy_norm",
-                              "entropy_inliers_norm", "parallax_med_px", "rot_deg", "rot_only_px"),
+                              "entropy_inliers_norm", "entropy_inliers_shared_norm",
+                              "parallax_med_px", "rot_deg", "rot_only_px"),
           {"want": "choice:pure_rotation|planar_degeneracy", "he_degenerate": _NUM,
            "parallax_split_deg": _NUM, "read_at": "choice:keyframe|frame",
            "min_entropy": _NUM, "min_parallax_px": _NUM, "still_rotation_deg": _NUM,
