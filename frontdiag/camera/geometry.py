@@ -88,7 +88,8 @@ def undistort_points(xy: np.ndarray, intr: Intrinsics | None) -> np.ndarray:
 # Fewest grid cells a shared view must cover for the inliers' spread over it to be read: a sixth
 # of the 8x6 grid. Under that the two views barely overlap and the spread says nothing.
 MIN_SHARED_CELLS = 8
-_BORDER_SAMPLES = 16  # points per image side traced through the homography
+_BORDER_SAMPLES = 16  # points per image side of the reference's outline
+_OUTLINE_POINTS = 100  # correspondences the least-squares homography is fitted on
 
 
 @functools.lru_cache(maxsize=16)
@@ -135,6 +136,9 @@ def shared_cells(und_ref: np.ndarray, und_cur: np.ndarray, intr: Intrinsics | No
     """
     if len(und_ref) < 8:
         return None
+    # an outline needs no more than an evenly spaced subset of the correspondences
+    sub = np.linspace(0, len(und_ref) - 1, min(len(und_ref), _OUTLINE_POINTS)).astype(np.intp)
+    und_ref, und_cur = und_ref[sub], und_cur[sub]
     H, _ = cv2.findHomography(np.ascontiguousarray(und_ref, np.float64),
                               np.ascontiguousarray(und_cur, np.float64), 0)
     if H is None or not np.all(np.isfinite(H)) or abs(np.linalg.det(H)) < 1e-12:
