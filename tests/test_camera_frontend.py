@@ -402,3 +402,16 @@ def test_stray_corners_at_scale_do_not_spread_the_hull() -> None:
                   np.zeros(2, np.float32), np.zeros((2, 32), np.uint8))
     assert coarse_texture(f2, 1280, 720, 20)[0] == 2
     assert math.isnan(coarse_texture(f2, 1280, 720, 20)[1])
+
+
+def test_a_wide_turn_reads_its_inliers_over_the_view_both_frames_share() -> None:
+    """Turning 40 deg in a room with a 70 deg lens, the two views share about 40 % of the
+    second one: the inliers crowd into that part of the grid, and spread over it."""
+    g = [S.render(room(), K, S.rot((0, 1, 0), deg), np.zeros(3), SIZE) for deg in (0.0, 40.0)]
+    r = run(g)[1]
+    assert r["inliers_e"] >= MIN_ENTROPY_POINTS
+    shared, whole = r["entropy_inliers_shared_norm"], r["entropy_inliers_norm"]
+    assert shared > whole + 0.1  # normalised over fewer cells, and filling them
+    assert shared > 0.75
+    still = run([g[0], g[0]])[1]  # nothing turned: the whole view is shared
+    assert still["entropy_inliers_shared_norm"] == pytest.approx(still["entropy_inliers_norm"])
