@@ -66,11 +66,11 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
        "inliers, where even a uniform spread reads below 0.6 by sampling alone", "higher"),
     _M("entropy_inliers_shared_norm", "ratio", "camera",
        "entropy_inliers_norm over the cells of the grid that the reference keyframe also saw "
-       "(its outline traced through the inliers' homography), divided by log2 of their number: "
-       "how the inliers spread over the part of the view they could come from. A panorama shot "
-       "turned 40 deg shares a third of its view, and its inliers, spread over that third, read "
-       "0.4 over the whole grid; NaN when under 8 cells are shared or the homography is singular",
-       "higher"),
+       "(cell centres taken back through the inliers' homography into its image), divided by "
+       "log2 of their number: how the inliers spread over the part of the view they could come "
+       "from. A panorama shot turned 40 deg through a 60 deg lens shares a third of its view, "
+       "and its inliers, spread over that third, read 0.4 over the whole grid; NaN when under 8 "
+       "cells are shared or the homography is singular", "higher"),
     _M("occupied_cells", "count", "camera", "cells of the 8x6 grid holding at least one keypoint", "higher"),
     _M("n_coarse_keypoints", "count", "camera",
        "keypoints at pyramid level >= 3 (scale >= 1.73) with a FAST score >= 20: texture at "

@@ -855,8 +855,9 @@ def quadrant_entropy(df: pd.DataFrame) -> np.ndarray:
 
     A homography fits features crowded into a small cone whatever the scene, so H/E reads the
     scene only when the inliers are spread. Spread is judged over what the reference keyframe
-    also saw: a camera that turned 40 deg shares a third of its view, and inliers filling that
-    third are as spread as correspondences can be, while over the whole grid they read 0.4.
+    also saw: a camera that turned 40 deg through a 60 deg lens shares a third of its view, and
+    inliers filling that third are as spread as correspondences can be, while over the whole
+    grid they read 0.4.
     Under ``MIN_SHARED_CELLS`` (a sixth of the view) the shared part is unknown.
     """
     ent_in = col(df, "entropy_inliers_shared_norm")
