@@ -12,8 +12,8 @@ frontdiag/loops/inject.py) and every share of the true loop count (10/30/50 %), 
              random (the change the 0.98 retention bar allows)
 * ATE self   map of the kept loops vs the map of the loops the audit keeps on the clean graph:
              what the injected false loops changed in the audit's outcome. A graph whose
-             published loops include some the audit refutes (intel: 4 of 256, 2.1-2.4 m and
-             3-30 deg off the map of the others) has ATE kept > 0 with no false loop kept;
+             published loops include some the audit refutes (intel: 4 of 256, 0.3-2.4 m and
+             0.8-30 deg off the map of the others) has ATE kept > 0 with no false loop kept;
              this column separates that from a fold the injected loops caused
 * audit s    wall time of `audit` (chain, pairs, map rounds)
 * GNC s      GTSAM's GncLMOptimizer (TLS, odometry as known inliers) on the same graph, its
