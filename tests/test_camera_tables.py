@@ -25,6 +25,7 @@ from frontdiag.camera.geometry import (
     ransac_iters_run,
     shared_cells,
 )
+from frontdiag.camera.synthetic import rot
 from frontdiag.records import Intrinsics
 
 
@@ -69,22 +70,18 @@ def test_entropy_needs_enough_points_to_read_spread() -> None:
     assert _uniform_entropies(MIN_ENTROPY_POINTS - 10).mean() < 0.74  # under "acceptable"
 
 
-def _yaw(deg: float) -> np.ndarray:
-    a = math.radians(deg)
-    return np.array([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]])
-
-
 def _turn(K: np.ndarray, deg: float, w: int, h: int, n: int = 400, seed: int = 1
-          ) -> tuple[np.ndarray, np.ndarray]:
-    """Correspondences of a camera turning on the spot: every point the two views share."""
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A camera turning on the spot: its homography K R K^-1 and the correspondences of every
+    point the two views share."""
     rng = np.random.default_rng(seed)
-    H = K @ _yaw(deg) @ np.linalg.inv(K)
+    H = K @ rot((0, 1, 0), deg) @ np.linalg.inv(K)
     ref = rng.uniform((0, 0), (w, h), (20 * n, 2))
     q = np.column_stack([ref, np.ones(len(ref))]) @ H.T
     cur = q[:, :2] / q[:, 2:3]
     seen = (q[:, 2] > 0) & (cur[:, 0] >= 0) & (cur[:, 0] < w) & (cur[:, 1] >= 0) & \
         (cur[:, 1] < h)
-    return ref[seen][:n], cur[seen][:n]
+    return H, ref[seen][:n], cur[seen][:n]
 
 
 def test_a_turn_shares_the_band_its_views_overlap_in() -> None:
@@ -93,11 +90,11 @@ def test_a_turn_shares_the_band_its_views_overlap_in() -> None:
     w, h, f = 640, 480, 628.0  # 54 deg across
     K = np.array([[f, 0, w / 2], [0, f, h / 2], [0, 0, 1.0]])
     intr = Intrinsics(K=K, model="none", width=w, height=h)
-    ref, cur = _turn(K, 44.0, w, h)
-    shared = shared_cells(ref, cur, intr, w, h, ENTROPY_GRID)
+    H, _, cur = _turn(K, 44.0, w, h)
+    shared = shared_cells(H, cur, intr, w, h, ENTROPY_GRID)
     assert shared is not None
     cols, rows = ENTROPY_GRID
-    back = np.linalg.inv(K @ _yaw(44.0) @ np.linalg.inv(K))
+    back = np.linalg.inv(H)
     for r in range(rows):
         for c in range(cols):
             p = back @ [(c + 0.5) * w / cols, (r + 0.5) * h / rows, 1.0]
@@ -109,14 +106,15 @@ def test_a_turn_shares_the_band_its_views_overlap_in() -> None:
     assert spatial_entropy(cur, w, h)[0] < 0.66
     assert shared_entropy(cur, shared, w, h) > 0.95
     # standing still shares the whole view; turning past the field of view shares nothing
-    still = shared_cells(ref, ref, intr, w, h, ENTROPY_GRID)
+    still = shared_cells(np.eye(3), cur, intr, w, h, ENTROPY_GRID)
     assert still is not None and still.all()
-    ref2, cur2 = _turn(K, 50.0, w, h)
-    assert shared_cells(ref2, cur2, intr, w, h, ENTROPY_GRID) is None  # under 8 cells
+    H2, _, cur2 = _turn(K, 50.0, w, h)
+    assert shared_cells(H2, cur2, intr, w, h, ENTROPY_GRID) is None  # under 8 cells
+    assert shared_cells(None, cur, intr, w, h, ENTROPY_GRID) is None  # no homography fitted
     # a wide lens turning past 90 deg of its reference's outline: centres behind it are unseen
     K2 = np.array([[320.0, 0, w / 2], [0, 320.0, h / 2], [0, 0, 1.0]])
-    ref3, cur3 = _turn(K2, 60.0, w, h)
-    wide = shared_cells(ref3, cur3, Intrinsics(K=K2, model="none", width=w, height=h), w, h,
+    H3, _, cur3 = _turn(K2, 60.0, w, h)
+    wide = shared_cells(H3, cur3, Intrinsics(K=K2, model="none", width=w, height=h), w, h,
                         ENTROPY_GRID)
     assert wide is not None and MIN_SHARED_CELLS <= wide.sum() < 24
     assert not wide[:, 0].any()  # the left edge looks where the reference never did

@@ -311,8 +311,8 @@ class CameraFrontend:
             h, w = cur.gray.shape[:2]
             xy_in = cur.feats.xy[sel[tv.inlier_mask]]
             row["entropy_inliers_norm"] = spatial_entropy(xy_in, w, h)[0]
-            shared = shared_cells(p_ref[tv.inlier_mask], p_cur[tv.inlier_mask],
-                                  self.intrinsics, w, h, ENTROPY_GRID)
+            shared = shared_cells(tv.H, p_cur[tv.inlier_mask], self.intrinsics, w, h,
+                                  ENTROPY_GRID)
             if shared is not None:
                 row["entropy_inliers_shared_norm"] = shared_entropy(xy_in, shared, w, h)
         if self._K is None:

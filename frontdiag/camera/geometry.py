@@ -89,7 +89,6 @@ def undistort_points(xy: np.ndarray, intr: Intrinsics | None) -> np.ndarray:
 # of the 8x6 grid. Under that the two views barely overlap and the spread says nothing.
 MIN_SHARED_CELLS = 8
 _BORDER_SAMPLES = 16  # points per image side of the reference's outline
-_OUTLINE_POINTS = 100  # correspondences the least-squares homography is fitted on
 
 
 @functools.lru_cache(maxsize=16)
@@ -123,25 +122,20 @@ def _inside(poly: np.ndarray, pts: np.ndarray) -> np.ndarray:
     return np.count_nonzero(straddle & (px < x_cross), axis=1) % 2 == 1
 
 
-def shared_cells(und_ref: np.ndarray, und_cur: np.ndarray, intr: Intrinsics | None,
+def shared_cells(H: np.ndarray | None, und_cur: np.ndarray, intr: Intrinsics | None,
                  width: int, height: int, grid: tuple[int, int]) -> np.ndarray | None:
     """Cells of the current image's ``cols x rows`` grid that the reference view also saw.
 
-    Each cell's centre (undistorted) is taken back through the least-squares homography of the
-    given correspondences (undistorted pixels, reference -> current); the cell is shared when it
-    lands in front of the reference camera and inside the reference image's outline
+    Each cell's centre (undistorted) is taken back through ``H``, the homography of the pair
+    (undistorted pixels, reference -> current, as ``two_view`` fitted it); the cell is shared
+    when it lands in front of the reference camera and inside the reference image's outline
     (undistorted). For a rotation the homography is exact; under translation it is the overlap
-    at the depth of the correspondences, which is what the inliers can cover. None when the
-    homography is singular or fewer than ``MIN_SHARED_CELLS`` cells are shared.
+    at the depth of the plane it fits. ``und_cur`` (current points of correspondences) tells
+    which side of the homography's horizon is in front. None when there is no homography, it
+    is singular, or fewer than ``MIN_SHARED_CELLS`` cells are shared.
     """
-    if len(und_ref) < 8:
-        return None
-    # an outline needs no more than an evenly spaced subset of the correspondences
-    sub = np.linspace(0, len(und_ref) - 1, min(len(und_ref), _OUTLINE_POINTS)).astype(np.intp)
-    und_ref, und_cur = und_ref[sub], und_cur[sub]
-    H, _ = cv2.findHomography(np.ascontiguousarray(und_ref, np.float64),
-                              np.ascontiguousarray(und_cur, np.float64), 0)
-    if H is None or not np.all(np.isfinite(H)) or abs(np.linalg.det(H)) < 1e-12:
+    if H is None or len(und_cur) == 0 or not np.all(np.isfinite(H)) \
+            or abs(np.linalg.det(H)) < 1e-12:
         return None
     if intr is None or not intr.has_distortion or intr.model == "none":
         key = (width, height, grid, np.eye(3).tobytes(), b"", "none")
@@ -177,6 +171,7 @@ class TwoView:
     t_dir: np.ndarray | None = None  # unit translation direction, reference -> current
     ok_e: bool = False
     inlier_mask: np.ndarray | None = None  # (n_corr,) bool: the essential-matrix inliers
+    H: np.ndarray | None = None  # the homography, reference -> current (undistorted pixels)
 
     @property
     def h_over_e(self) -> float:
@@ -186,16 +181,16 @@ class TwoView:
 
 
 def fit_homography(p_ref: np.ndarray, p_cur: np.ndarray, thr_px: float, confidence: float,
-                   max_iters: int, seed: int) -> float:
-    """Homography inliers (USAC_MAGSAC) on the given correspondences."""
+                   max_iters: int, seed: int) -> tuple[float, np.ndarray | None]:
+    """Homography inliers (USAC_MAGSAC) on the given correspondences, and the homography."""
     if len(p_ref) < H_SAMPLE:
-        return float("nan")
+        return float("nan"), None
     cv2.setRNGSeed(seed)
     H, mask = cv2.findHomography(p_ref, p_cur, cv2.USAC_MAGSAC, thr_px, maxIters=max_iters,
                                  confidence=confidence)
     if H is None or mask is None:
-        return 0.0
-    return float(np.count_nonzero(mask))
+        return 0.0, None
+    return float(np.count_nonzero(mask)), H
 
 
 def bearings(p: np.ndarray, K: np.ndarray) -> np.ndarray:
@@ -403,25 +398,26 @@ def two_view(p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray | None, *,
     n = len(p_ref)
     p_ref = np.ascontiguousarray(p_ref, np.float64)
     p_cur = np.ascontiguousarray(p_cur, np.float64)
-    inl_h = fit_homography(p_ref, p_cur, homography_threshold_px(sigma_px), confidence,
-                           max_iters, seed)
+    inl_h, H = fit_homography(p_ref, p_cur, homography_threshold_px(sigma_px), confidence,
+                              max_iters, seed)
     if K is None or n < E_SAMPLE:
-        return TwoView(n, inliers_h=inl_h)
+        return TwoView(n, inliers_h=inl_h, H=H)
     cv2.setRNGSeed(seed)
     E, mask = cv2.findEssentialMat(p_ref, p_cur, K, method=cv2.USAC_MAGSAC, prob=confidence,
                                    threshold=epipolar_threshold_px(sigma_px), maxIters=max_iters)
     if E is None or mask is None or E.shape != (3, 3):
-        return TwoView(n, inliers_e=0.0, inliers_h=inl_h, inlier_ratio=0.0)
+        return TwoView(n, inliers_e=0.0, inliers_h=inl_h, inlier_ratio=0.0, H=H)
     sel = mask.ravel() > 0
     inl_e = int(np.count_nonzero(sel))
     w = inl_e / n
     if inl_e < E_SAMPLE:
         return TwoView(n, inliers_e=float(inl_e), inliers_h=inl_h, inlier_ratio=w,
-                       inlier_mask=sel)
+                       inlier_mask=sel, H=H)
     f_ref, f_cur = bearings(p_ref[sel], K), bearings(p_cur[sel], K)
     R, t, par = decompose(E, f_ref, f_cur)
     rot = float(np.degrees(np.linalg.norm(cv2.Rodrigues(R)[0])))
     cond = pose_information_condition(f_ref, f_cur, K, R, t) if pose_information else math.nan
     return TwoView(n, inliers_e=float(inl_e), inliers_h=inl_h, inlier_ratio=w, rot_deg=rot,
                    parallax_med_deg=float(np.median(par)), pose_info_cond=cond,
-                   t_dir=t / max(float(np.linalg.norm(t)), 1e-12), ok_e=True, inlier_mask=sel)
+                   t_dir=t / max(float(np.linalg.norm(t)), 1e-12), ok_e=True, inlier_mask=sel,
+                   H=H)

@@ -791,9 +791,8 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                    "(twice the homography threshold), so a 3D scene also fits H nearly as well "
                    "as E (low resolution or short baseline)")
     ent_sh = _v(row, "entropy_inliers_shared_norm")
-    ent = float(quadrant_entropy(pd.DataFrame([{
-        m: _v(row, m) for m in ("entropy_norm", "entropy_inliers_norm",
-                                "entropy_inliers_shared_norm")}]))[0])
+    ent = float(_quadrant_spread(_v(row, "entropy_norm"), _v(row, "entropy_inliers_norm"),
+                                 ent_sh))
     where = ("inliers over the view shared with the reference keyframe"
              if not np.isnan(ent_sh) else "inliers")
     if "min_entropy" in p and not ent >= p["min_entropy"]:
@@ -860,10 +859,13 @@ def quadrant_entropy(df: pd.DataFrame) -> np.ndarray:
     grid they read 0.4.
     Under ``MIN_SHARED_CELLS`` (a sixth of the view) the shared part is unknown.
     """
-    ent_in = col(df, "entropy_inliers_shared_norm")
-    ent_in = np.where(np.isnan(ent_in), col(df, "entropy_inliers_norm"), ent_in)
-    with np.errstate(invalid="ignore"):
-        return np.fmin(col(df, "entropy_norm"), ent_in)
+    return _quadrant_spread(col(df, "entropy_norm"), col(df, "entropy_inliers_norm"),
+                            col(df, "entropy_inliers_shared_norm"))
+
+
+def _quadrant_spread(ent: Any, ent_in: Any, ent_shared: Any) -> Any:
+    """``quadrant_entropy`` on arrays or on one row's values."""
+    return np.fmin(ent, np.where(np.isnan(ent_shared), ent_in, ent_shared))
 
 
 def _clustering(df: pd.DataFrame, p: Params) -> np.ndarray:
