@@ -66,7 +66,7 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
        "inliers, where even a uniform spread reads below 0.6 by sampling alone", "higher"),
     _M("entropy_inliers_shared_norm", "ratio", "camera",
        "entropy_inliers_norm over the cells of the grid that the reference keyframe also saw "
-       "(cell centres taken back through the inliers' homography into its image), divided by "
+       "(cell centres taken back through the pair's homography into its image), divided by "
        "log2 of their number: how the inliers spread over the part of the view they could come "
        "from. A panorama shot turned 40 deg through a 60 deg lens shares a third of its view, "
        "and its inliers, spread over that third, read 0.4 over the whole grid; NaN when under 8 "
