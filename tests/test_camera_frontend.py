@@ -228,6 +228,19 @@ def test_a_short_interval_is_also_read_against_the_keyframe_before() -> None:
     assert double > 1.4 * single, (double, single)
 
 
+def test_a_camera_standing_still_is_not_read_two_intervals_back() -> None:
+    # keyframes every 4 frames, as in the slow walk above, but the camera does not move: the
+    # two intervals together stay far under the line, so a reading over both could not be used
+    rng = np.random.default_rng(5)
+    still = S.render(room(), K, np.eye(3), np.zeros(3), SIZE)
+    grays = [np.clip(still + rng.normal(0, 2.0, still.shape), 0, 255).astype(np.uint8)
+             for _ in range(14)]
+    rows = run_completed(CameraFrontend(CameraParams(kf_max_frames=4), Intrinsics(K=K)), grays)
+    assert [i for i, r in enumerate(rows) if r["keyframe_reason"]][:3] == [0, 4, 8]
+    assert all(r["parallax_med_px"] < 1.0 for r in rows[1:])
+    assert all(np.isnan(r["h_over_e_2kf"]) and r["ref2_frame"] == -1 for r in rows)
+
+
 def test_enough_parallax_needs_no_second_read() -> None:
     rows = run(walk(8, step_deg=0.3, step_m=0.08))
     wide = [r for r in rows[1:] if r["parallax_med_px"] >= 4.9]
