@@ -201,9 +201,12 @@ def test_a_long_interval_is_not_read_two_intervals_back() -> None:
 
 def test_a_short_interval_is_also_read_against_the_keyframe_before() -> None:
     # keyframes every 4 frames on a slow walk: each interval spans a few pixels, under the
-    # 4.9 px at which H/E starts to tell a plane from 3D structure
+    # 4.9 px at which H/E starts to tell a plane from 3D structure. At 2 cm a frame two
+    # intervals add up to 3-5 px, so every one is read; at 1 cm the last interval (one frame)
+    # and the one before add up to 1.8-2.5 px, under the half of the line below which the
+    # reading cannot be used and is not taken (the test after this one)
     fe = CameraFrontend(CameraParams(kf_max_frames=4), Intrinsics(K=K))
-    rows = run_completed(fe, walk(14, step_deg=0.05, step_m=0.01))
+    rows = run_completed(fe, walk(14, step_deg=0.05, step_m=0.02))
     kfs = [i for i, r in enumerate(rows) if r["keyframe_reason"]]
     assert kfs[:3] == [0, 4, 8]
     # first interval: no keyframe before the reference
