@@ -38,6 +38,8 @@ class Linearised:
     """(edges, k, k) unwhitened Jacobian blocks of the error wrt the source vertex."""
     Je_j: F
     """(edges, k, k) the same wrt the destination vertex."""
+    e: F | None = None
+    """(edges, k) the errors before whitening (``r`` is ``U e``), where kept."""
 
 
 def _chol_upper(info: F) -> F:
@@ -65,7 +67,7 @@ def linearise(P: F, src: NDArray[np.int64], dst: NDArray[np.int64], Z: F, U: F,
     Ji = -Jr_inv @ lie.adjoint(lie.inv(T))
     del n
     r = np.einsum("mij,mj->mi", U, e).ravel()
-    return Linearised(r=r, U=U, Je_i=Ji, Je_j=Jr_inv)
+    return Linearised(r=r, U=U, Je_i=Ji, Je_j=Jr_inv, e=e)
 
 
 def scatter_add(idx: NDArray[np.int64], vals: F, n: int) -> F:
