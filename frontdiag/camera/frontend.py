@@ -163,6 +163,11 @@ class _Keyframe:
     """The largest median parallax (deg) a frame of the parent's interval read against the
     parent: the first leg of this interval's two-interval readings (NaN when none was read)."""
 
+    def largest_parallax_deg(self) -> float:
+        """The largest median parallax (deg) a frame of this interval read against it (NaN when
+        none was read)."""
+        return max((r[0] for r in self.reads), default=NAN)
+
 
 def _row_template() -> dict[str, Any]:
     return {
@@ -422,9 +427,9 @@ class CameraFrontend:
         standing still (EuRoC V1, both cameras), a fixed camera over a plaza, a parked robot
         panning its camera head; slow pans and drives whose two intervals reach the line are
         read as before."""
-        if self._K is None or not kf.reads or math.isnan(kf.parent_deg):
+        own = kf.largest_parallax_deg()
+        if self._K is None or math.isnan(own) or math.isnan(kf.parent_deg):
             return False
-        own = float(np.max(np.array(kf.reads)[:, 0]))
         line_px = min(self.params.two_interval_px, self._he_min_px)
         line = math.degrees(math.atan(line_px / float(self._K[0, 0])))
         return own + kf.parent_deg < TWO_INTERVAL_MARGIN * line
@@ -543,10 +548,9 @@ class CameraFrontend:
             linked = kf is not None and reason != "lost"
             parent_idx = cur.kf_idx if linked else None
             cur.kf_idx = np.arange(len(cur.feats), dtype=np.intp)
-            parent_deg = float(np.max(np.array(kf.reads)[:, 0])) if linked and kf and kf.reads \
-                else NAN
             self._kf = _Keyframe(cur, parent=kf.view if linked and kf else None,
-                                 parent_idx=parent_idx, parent_deg=parent_deg)
+                                 parent_idx=parent_idx,
+                                 parent_deg=kf.largest_parallax_deg() if linked and kf else NAN)
         row["keyframe_reason"] = reason
         self._prev = cur
         row.update(ms_detect=timer.ms.get("detect", 0.0), ms_match=timer.ms.get("match", 0.0),

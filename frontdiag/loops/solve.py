@@ -38,8 +38,8 @@ class Linearised:
     """(edges, k, k) unwhitened Jacobian blocks of the error wrt the source vertex."""
     Je_j: F
     """(edges, k, k) the same wrt the destination vertex."""
-    e: F | None = None
-    """(edges, k) the errors before whitening (``r`` is ``U e``), where kept."""
+    e: F
+    """(edges, k) the errors before whitening (``r`` is ``U e``)."""
 
 
 def _chol_upper(info: F) -> F:

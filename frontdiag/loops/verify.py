@@ -87,11 +87,10 @@ def map_test(result: LoopAudit, P: F, in_map: NDArray[np.bool_], seed: int = 0) 
     sel = np.flatnonzero(edges)
     U_all = _chol_upper(g.info)
     lin_all = linearise(P, g.src, g.dst, g.Z, U_all, n)
-    assert lin_all.e is not None
     e_all = lin_all.e
     # the map's edges are a subset of every edge: take their linearisation from lin_all
     lin = Linearised(r=lin_all.r.reshape(-1, k)[sel].ravel(), U=U_all[sel],
-                     Je_i=lin_all.Je_i[sel], Je_j=lin_all.Je_j[sel])
+                     Je_i=lin_all.Je_i[sel], Je_j=lin_all.Je_j[sel], e=e_all[sel])
     H, _ = normal_equations(lin, g.src[sel], g.dst[sel], n, 0.0)
     fac = Factor(H)
     rng = np.random.default_rng(seed)
