@@ -373,6 +373,32 @@ def test_a_rotation_fit_counts_only_with_its_focal_inside_the_range(ruleset, he,
         assert any("an end of the 0.5-2x focal range searched" in ln for ln in lines)
 
 
+@pytest.mark.parametrize(("w", "required", "want"), [
+    (0.85, 12, ["planar_degeneracy"]),               # a plane keeps its correspondences
+    (0.125, 226_350, ["ransac_starved"]),            # a chequerboard's chance consensus
+    (0.125, np.nan, ["planar_degeneracy"]),          # a table without the columns: as before
+])
+def test_a_starved_ransac_gives_no_h_over_e_reading(ruleset, w, required, want) -> None:
+    """A hand-held chequerboard's ratio-test survivors are 10-30 % right: 1000 iterations fit E
+    and H to a chance consensus of 8-28 points, and H/E 0.94-1.67 from them said planar. The
+    row is RANSAC starvation (FD-RAN-001), not a reading of the scene."""
+    from frontdiag.verdicts.explain import explain_row
+
+    row = {"h_over_e": 1.4, "parallax_med_deg": 8.0, "parallax_med_px": 80.0, "rot_deg": 5.0,
+           "inliers_e": 14, "inliers_h": 20, "inlier_ratio": w,
+           "ransac_iters_required": required, "ransac_iters_run": 1000}
+    res = evaluate(frames(20, {range(5, 15): row}), ruleset)
+    assert conds(res, 10) == want
+    for rid in ("FD-PLN-001", "FD-ROT-001"):
+        lines = next(e for e in explain_row(res, 10) if e.rule.id == rid).check_lines
+        assert any("not read: RANSAC was starved" in ln for ln in lines) == \
+            (want == ["ransac_starved"])
+    starved_note = [n for n in res.notes if n.startswith("FD-PLN-001") and "starved" in n]
+    assert len(starved_note) == (1 if want == ["ransac_starved"] else 0)
+    if starved_note:
+        assert "did not read 10 row(s)" in starved_note[0]
+
+
 @pytest.mark.parametrize(("rot_px", "scale", "want"), [
     (np.nan, np.nan, ["pure_rotation"]),    # no fit taken: the angle decides
     (0.8, 1.1, ["pure_rotation"]),          # a rotation fits inside the range

@@ -599,6 +599,27 @@ def _at_focal_edge(scale: np.ndarray, p: Params) -> np.ndarray:
                 | (scale >= p["rot_fit_focal_max"] * (1 - 1e-6)))
 
 
+def starved_geometry(df: pd.DataFrame, p: Params) -> np.ndarray:
+    """Rows whose two-view models cannot be trusted to describe the scene (rules with
+    ``max_starvation``): RANSAC ran fewer iterations than the measured inlier ratio requires,
+    FD-RAN-001's test (``ransac_iters_required > max_starvation x ransac_iters_run``).
+
+    At an inlier ratio of 0.1-0.2 (a chequerboard's matches after the ratio test) 1000
+    iterations draw an all-inlier 5-point sample with probability 0.01-0.27, so E and H are
+    fitted to whatever chance consensus the draws found (8-28 points of 58-107 on the hand-held
+    chequerboards of the validation set's dev half), and their inlier counts, H/E, the parallax
+    and the rotation say nothing about the scene. A plane or a pure rotation keeps its
+    correspondences (inlier ratio 0.64-0.99 on the dev half's planar and rotating recordings
+    without repetition), so reading them is not starved. Tables without the columns are read as
+    before.
+    """
+    if "max_starvation" not in p:
+        return np.zeros(len(df), dtype=bool)
+    req, ran = col(df, "ransac_iters_required"), col(df, "ransac_iters_run")
+    with np.errstate(invalid="ignore"):
+        return (ran >= 1) & (req > p["max_starvation"] * ran)
+
+
 def _keyframe_read(df: pd.DataFrame, p: Params) -> pd.DataFrame:
     """H/E and parallax as read where each row's reference keyframe saw the most parallax.
 
@@ -613,6 +634,8 @@ def _keyframe_read(df: pd.DataFrame, p: Params) -> pd.DataFrame:
     read_at = "frame") are read on their own.
     """
     he, par = col(df, "h_over_e"), col(df, "parallax_med_deg")
+    # a starved RANSAC's models are not the scene's: the row gives no reading at all
+    he = np.where(starved_geometry(df, p), np.nan, he)
     par_px, rot = col(df, "parallax_med_px"), col(df, "rot_deg")
     rot_px = _bracketed_rotation_fit(df, p)
     ref = col(df, "ref_frame")
@@ -711,17 +734,32 @@ def _he_parallax(df: pd.DataFrame, p: Params) -> np.ndarray:
 
 def _he_parallax_unread(df: pd.DataFrame, p: Params) -> tuple[np.ndarray, str]:
     """Rows whose reading falls in the wanted quadrant but with too little image parallax for
-    H/E to tell a plane from a 3D scene (min_parallax_px)."""
-    if "min_parallax_px" not in p:
-        return np.zeros(len(df), dtype=bool), ""
-    read, wanted = _wanted_quadrant(df, p)
-    with np.errstate(invalid="ignore"):
-        low = read["kf_parallax_med_px"].to_numpy() < p["min_parallax_px"]
-    return wanted & low, (
-        f"H/E > {p['he_degenerate']:g} over a keyframe interval whose parallax stayed under "
-        f"{p['min_parallax_px']:g} px in the image, also when read two keyframe intervals back, "
-        "where a 3D scene fits a homography nearly as well as E; a higher resolution or a longer "
-        "keyframe baseline lets it be read")
+    H/E to tell a plane from a 3D scene (min_parallax_px), and rows whose own two-view models
+    would fall in it but come from a starved RANSAC (max_starvation)."""
+    mask, why = np.zeros(len(df), dtype=bool), []
+    if "min_parallax_px" in p:
+        read, wanted = _wanted_quadrant(df, p)
+        with np.errstate(invalid="ignore"):
+            low = wanted & (read["kf_parallax_med_px"].to_numpy() < p["min_parallax_px"])
+        if low.any():
+            mask |= low
+            why.append(
+                f"H/E > {p['he_degenerate']:g} over a keyframe interval whose parallax stayed "
+                f"under {p['min_parallax_px']:g} px in the image, also when read two keyframe "
+                "intervals back, where a 3D scene fits a homography nearly as well as E; a "
+                "higher resolution or a longer keyframe baseline lets it be read")
+    starved = starved_geometry(df, p)
+    if starved.any():
+        raw = {k: v for k, v in p.items() if k != "max_starvation"} | {"read_at": "frame"}
+        _, wanted_raw = _wanted_quadrant(df.iloc[np.flatnonzero(starved)], raw)
+        at = np.flatnonzero(starved)[wanted_raw]
+        if at.size:
+            mask[at] = True
+            why.append(
+                "their own E and H would read this quadrant, but RANSAC was starved (fewer "
+                "iterations than the inlier ratio requires, FD-RAN-001): models fitted to a "
+                "chance consensus say nothing about the scene")
+    return mask, "; ".join(why)
 
 
 _QUADRANT_WORDS = {
@@ -737,6 +775,16 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     he, par = _v(row, "h_over_e"), _v(row, "parallax_med_deg")
     kf_he, kf_par = _v(row, "kf_h_over_e"), _v(row, "kf_parallax_med_deg")
     out = [f"this frame: h_over_e {_fmt(he)}, parallax_med_deg {_fmt(par)}"]
+    req, ran = _v(row, "ransac_iters_required"), _v(row, "ransac_iters_run")
+    if "max_starvation" in p and ran >= 1 and req > p["max_starvation"] * ran:
+        w = _v(row, "inlier_ratio")
+        out.append(f"not read: RANSAC was starved (inlier ratio {_fmt(w)} requires {req:.4g} "
+                   f"iterations, {ran:.4g} ran; FD-RAN-001): E and H were fitted to a chance "
+                   f"consensus of {_fmt(_v(row, 'inliers_e'))} and "
+                   f"{_fmt(_v(row, 'inliers_h'))} points, so H/E, parallax and rotation say "
+                   "nothing about the scene (a plane or a turn keeps most of its "
+                   "correspondences as inliers)")
+        return out
     if _v(row, "kf_intervals") == 2:
         out.append(f"read against keyframe {int(_v(row, 'ref2_frame'))}, two keyframe "
                    f"intervals back, because one interval spanned under "
@@ -1073,17 +1121,17 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
            "parallax_split_deg": _NUM, "read_at": "choice:keyframe|frame",
            "min_entropy": _NUM, "min_parallax_px": _NUM, "still_rotation_deg": _NUM,
            "still_parallax_px": _NUM, "rot_fit_px": _NUM, "rot_fit_turn_px": _NUM,
-           "rot_fit_focal_min": _NUM, "rot_fit_focal_max": _NUM},
+           "rot_fit_focal_min": _NUM, "rot_fit_focal_max": _NUM, "max_starvation": _NUM},
           {"h_over_e": "max", "parallax_med_deg": "min"},
           {"he_degenerate": "h_over_e", "parallax_split_deg": "parallax_med_deg",
            "min_entropy": "entropy_norm", "min_parallax_px": "parallax_med_px",
            "still_rotation_deg": "rot_deg", "still_parallax_px": "parallax_med_px",
            "rot_fit_px": "rot_only_px", "rot_fit_focal_min": "rot_focal_scale",
-           "rot_fit_focal_max": "rot_focal_scale"},
+           "rot_fit_focal_max": "rot_focal_scale", "max_starvation": "ransac_iters_required"},
           frame=_he_parallax, explain=_he_parallax_explain, context=_keyframe_read,
           optional=frozenset({"min_entropy", "min_parallax_px", "still_rotation_deg",
                               "still_parallax_px", "rot_fit_px", "rot_fit_turn_px",
-                              "rot_fit_focal_min", "rot_fit_focal_max"}),
+                              "rot_fit_focal_min", "rot_fit_focal_max", "max_starvation"}),
           unread=_he_parallax_unread),
     Check("clustering", "low keypoint entropy with enough features, confirmed by the "
           "condition number of the pose information matrix",
