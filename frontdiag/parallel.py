@@ -160,10 +160,12 @@ def _task(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
           ) -> StreamRun:
     """One window (or the whole LiDAR stream) in a worker process."""
     import cv2
+    from threadpoolctl import threadpool_limits
 
     cv2.setNumThreads(1)  # one core per worker: the workers are the parallelism
     until = None if until_keys is None else (lambda f, key: until_keys.get(f) == key)
-    with interruptible(), open_recording(path) as rec:
+    with interruptible(), threadpool_limits(limits=1, user_api="blas"), \
+            open_recording(path) as rec:
         run = run_stream(rec, choice, opts, intr, frames=frames, resume=resume, until=until,
                          record_keys=frames is not None,
                          want_end_state=frames is not None)

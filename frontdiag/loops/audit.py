@@ -80,7 +80,23 @@ def _calibration_note(t: pd.DataFrame, k: int) -> str | None:
 def audit(graph: PoseGraph, rules: LoopRules | None = None, *, odom_max_gap: int = 1,
           verify: bool = True, calibrate: bool = False,
           progress: Callable[[str], None] | None = None) -> LoopAudit:
-    """Test every loop of ``graph`` (see the module doc) and return the per-loop table."""
+    """Test every loop of ``graph`` (see the module doc) and return the per-loop table.
+
+    Runs with one BLAS thread: the audit's dense algebra is batches of 3x3 or 6x6 blocks and
+    vector products (the sparse factorisation is single-threaded anyway), too small for BLAS
+    threads to help, and where another process holds a core their synchronisation stalls
+    every product: M3500 with 30 % random false loops took 4.7-5.0 s with two BLAS threads
+    beside one busy process and 3.2-3.3 s with one (on a quiet machine 7-10 % apart).
+    """
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _audit(graph, rules, odom_max_gap=odom_max_gap, verify=verify,
+                      calibrate=calibrate, progress=progress)
+
+
+def _audit(graph: PoseGraph, rules: LoopRules | None, *, odom_max_gap: int, verify: bool,
+           calibrate: bool, progress: Callable[[str], None] | None) -> LoopAudit:
     rules = rules or load_loop_rules()
     say = progress or (lambda _s: None)
     timings: dict[str, float] = {}
