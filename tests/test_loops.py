@@ -502,6 +502,53 @@ def test_clusters_the_map_cannot_test_alone_are_verified_by_each_other(tmp_path:
     assert (on.loc[[k for k, _, _ in short], "verdict"] == "ok").all()
 
 
+def test_leaving_a_cluster_out_equals_solving_without_it(tmp_path: Path) -> None:
+    """The corroboration's test of a cluster against the map without it, from one factorisation
+    of the map with it (Woodbury), equals the dense computation: the Gauss-Newton solution of
+    the map without the cluster, from the same linearisation, and that map's covariance."""
+    from frontdiag.loops.solve import _chol_upper, linearise, normal_equations, solve
+    from frontdiag.loops.verify import leave_cluster_out, map_edges
+
+    lap = 120
+    A = [(i, i + lap, i + lap) for i in range(0, 10, 2)]
+    F = [(i, i + lap + 8, i + lap) for i in range(60, 70, 2)]  # a consistent alias, 8 m off
+    short = [(k, k + 4, k + 4) for k in range(5, 2 * lap - 5, 20)]
+    g = read_graph(_two_lap_square(tmp_path / "sq.g2o", 30, A + F + short))
+    res = audit(g)
+    t = res.table
+    in_map = np.ones(len(t), bool)
+    P, st = solve(g, map_edges(res, in_map), res.chain.P, tol=1e-14, max_iters=200)
+    assert st["converged"]
+    rows_A = np.flatnonzero(t["i"].isin([i for i, _, _ in A]).to_numpy())
+    rows_F = np.flatnonzero(t["i"].isin([i for i, _, _ in F]).to_numpy())
+    got = leave_cluster_out(res, P, in_map, [rows_A, rows_F])
+    k, n = g.k, g.n_vertices
+    for rows, (T2, var) in zip((rows_A, rows_F), got, strict=True):
+        keep = in_map.copy()
+        keep[rows] = False
+        sel = np.flatnonzero(map_edges(res, keep))
+        lin = linearise(P, g.src[sel], g.dst[sel], g.Z[sel], _chol_upper(g.info[sel]), n)
+        Hc, gc = normal_equations(lin, g.src[sel], g.dst[sel], n, 0.0)
+        Hu = Hc.toarray()
+        Cov = np.linalg.inv(Hu + np.triu(Hu, 1).T)  # the upper triangle made whole
+        dx = -(Cov @ gc).reshape(n, k)  # Gauss-Newton step of the map without the cluster
+        e_idx = t["edge"].to_numpy()[rows]
+        U = _chol_upper(g.info[e_idx])
+        lo = linearise(P, g.src[e_idx], g.dst[e_idx], g.Z[e_idx], U, n)
+        a, b = g.src[e_idx], g.dst[e_idx]
+        e_del = lo.e + np.einsum("mij,mj->mi", lo.Je_i, dx[a]) \
+            + np.einsum("mij,mj->mi", lo.Je_j, dx[b])
+        J = np.zeros((len(rows), k, n * k))
+        for m in range(len(rows)):
+            J[m][:, a[m] * k:(a[m] + 1) * k] = lo.Je_i[m]
+            J[m][:, b[m] * k:(b[m] + 1) * k] = lo.Je_j[m]
+        C = J @ Cov @ np.swapaxes(J, 1, 2)  # the map's covariance between each loop's poses
+        S = np.linalg.inv(g.info[e_idx]) + C
+        T2_dense = np.einsum("mi,mij,mj->m", e_del, np.linalg.inv(S), e_del)
+        np.testing.assert_allclose(T2, T2_dense, rtol=1e-6)
+        np.testing.assert_allclose(var, np.einsum("mii->m", C[:, :2, :2]), rtol=1e-6)
+
+
 @pytest.mark.parametrize("dim", [2, 3])
 def test_normal_equations_on_the_fixed_pattern_equal_the_full_assembly(dim: int) -> None:
     """The upper-triangle assembly (one bincount into a cached CSC pattern) gives the upper

@@ -1,10 +1,10 @@
 """A small sparse Levenberg–Marquardt pose-graph solver (SE(2) and SE(3)) on scipy.sparse.
 
 Edge error ``e = Log(Z⁻¹ P_i⁻¹ P_j)`` with right perturbations ``P ← P Exp(δ)``; Jacobians
-``∂e/∂δ_j = I`` and ``∂e/∂δ_i = −Ad(T_ij⁻¹)`` (the first-order ``J_r⁻¹(e) ≈ I``, exact at
-zero error). Whitened by the Cholesky factor of each edge's information; the first vertex is
-held by a stiff prior (the gauge). Normal equations are factorised with SuperLU under a
-approximate minimum degree ordering (QDLDL), once per solve.
+``∂e/∂δ_j = J_r⁻¹(e)`` and ``∂e/∂δ_i = −J_r⁻¹(e) Ad(T_ij⁻¹)`` (``linearise``). Whitened by
+the Cholesky factor of each edge's information; the first vertex is held by a stiff prior (the
+gauge). Normal equations are factorised by QDLDL (sparse LDLᵀ under an approximate minimum
+degree ordering), the pattern once per solve and the values once per iteration.
 
 This is the fallback and the verification solver of the audit; ``--optimize`` uses GTSAM when
 the ``loops-opt`` extra is installed.

@@ -13,8 +13,8 @@ none has by then).
 
 Loops that pass but never with power (the map too loose between their poses: a stretch that
 only they join) are then tested cluster by cluster against the map holding the other such
-clusters (``_corroborate``); the clusters that pass there with power join the map and the rounds
-run again.
+clusters (``_corroborate``, every cluster from one factorisation: ``leave_cluster_out``); the
+clusters that pass there with power join the map and the rounds run again.
 
 The test. At the solution the linearised system is ``H δx = −Aᵀ r``. Drawing whitened
 measurement noise ``n ~ N(0, I)`` for every edge of the map gives ``δx = −H⁻¹Aᵀn ~ N(0, H⁻¹)``
@@ -157,6 +157,12 @@ def _corroborate(result: LoopAudit, P: F, in_map: NDArray[np.bool_], res: dict[s
     agrees with itself, but not by chance with independent loops between other places (the
     inter-cluster consistency of Latif, Cadena & Neira 2013, RRR). A cluster that passes there
     with power joins the map; the rounds then re-test it with the rest.
+
+    Every cluster's test comes from one factorisation (:func:`leave_cluster_out`): the map
+    holding every candidate is solved once, and each cluster's residuals and covariances
+    against that map without it are the deleted residuals of data snooping for a group of
+    observations (Baarda 1968), exact for the map linearised there. The variance factor is
+    that of the map holding every candidate (:func:`map_test`).
     """
     t = result.table
     loops = t["edge"].to_numpy()
@@ -173,19 +179,67 @@ def _corroborate(result: LoopAudit, P: F, in_map: NDArray[np.bool_], res: dict[s
     if clusters.size < 2:
         return out
     g = result.graph
-    # every leave-one-cluster-out map starts from the map with every candidate in: one
-    # cluster out moves it little, so each solve takes a few iterations
-    edges = map_edges(result, in_map | cand)
-    P_all, _ = solve(g, edges, P, tol=1e-6)
-    for c in clusters.tolist():
-        mine = idx[label == c]
-        test = in_map.copy()
-        test[idx[label != c]] = True
-        edges = map_edges(result, test)
-        Pc, _ = solve(g, edges, P_all, tol=1e-4)
-        rc = map_test(result, Pc, test, seed=int(loops[mine[0]]))
-        ok = (rc["p"][mine] >= p_alarm) & (rc["map_sigma_m"][mine] <= power_m)
+    held = in_map | cand
+    P_all, _ = solve(g, map_edges(result, held), P, tol=1e-6)
+    sigma0_sq = float(map_test(result, P_all, held, seed=int(loops[idx[0]]))["sigma0_sq"][0])
+    tests = leave_cluster_out(result, P_all, held, [idx[label == c] for c in clusters.tolist()])
+    for mine, (T2, var) in zip((idx[label == c] for c in clusters.tolist()), tests,
+                               strict=True):
+        p = chi2_dist.sf(T2 / sigma0_sq, g.k)
+        ok = (p >= p_alarm) & (np.sqrt(var * sigma0_sq) <= power_m)
         out[mine[ok]] = True
+    return out
+
+
+def leave_cluster_out(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
+                      clusters: list[NDArray[np.int64]]) -> list[tuple[F, F]]:
+    """For each cluster (table rows of loops in the map of ``in_map``, solved at ``P``), every
+    one of its loops' T² and translation variance against the map without the cluster, before
+    the variance factor; one factorisation for all clusters.
+
+    With A the whitened Jacobian of the map's edges and H = AᵀA at the solution, take the
+    cluster's rows A_c and whitened residuals r_c, and M = A_c H⁻¹ A_cᵀ (the cluster's block of
+    the hat matrix). Without the cluster the normal matrix is H − A_cᵀA_c, and by the
+    Sherman-Morrison-Woodbury identity A_c (H − A_cᵀA_c)⁻¹ A_cᵀ = M (I − M)⁻¹, so the
+    cluster's residuals against the map solved without it are r_del = (I − M)⁻¹ r_c, with
+    covariance I + M (I − M)⁻¹ = (I − M)⁻¹ (the deleted residuals of data snooping for a group,
+    Baarda 1968). Per loop l: T² = r_del,lᵀ [(I − M)⁻¹]_ll⁻¹ r_del,l, χ²_k if the loops are true
+    and the covariances right; the map's own covariance between its poses is
+    U_l⁻¹ [M (I − M)⁻¹]_ll U_l⁻ᵀ, whose translation trace is returned. Exact for the map
+    linearised at P; the cost is one back-substitution per row of the clusters.
+    """
+    g = result.graph
+    k, n, d = g.k, g.n_vertices, g.dim
+    loops = result.table["edge"].to_numpy()
+    sel = np.flatnonzero(map_edges(result, in_map))
+    U = _chol_upper(g.info[sel])
+    lin = linearise(P, g.src[sel], g.dst[sel], g.Z[sel], U, n)
+    H, _ = normal_equations(lin, g.src[sel], g.dst[sel], n, 0.0)
+    fac = Factor(H)
+    where = np.full(g.n_edges, -1)
+    where[sel] = np.arange(sel.size)
+    out = []
+    for rows in clusters:
+        m = where[loops[rows]]  # the loops' places among the map's edges
+        if (m < 0).any():
+            raise ValueError("leave_cluster_out: a cluster's loop is not in the map")
+        Wi, Wj = lin.U[m] @ lin.Je_i[m], lin.U[m] @ lin.Je_j[m]  # (c, k, k) whitened blocks
+        c = m.size
+        At = np.zeros((n * k, c * k))  # A_cᵀ, one column per whitened residual row
+        cols = np.arange(c * k).reshape(c, k)
+        for blk, verts in ((Wi, g.src[sel][m]), (Wj, g.dst[sel][m])):
+            rr = (verts[:, None, None] * k + np.arange(k)[None, None, :])  # (c, 1, k) rows
+            At[np.broadcast_to(rr, (c, k, k)).ravel(),
+               np.broadcast_to(cols[:, :, None], (c, k, k)).ravel()] += blk.ravel()
+        Mx = At.T @ fac.solve(At)
+        Q = np.linalg.inv(np.eye(c * k) - Mx)  # (I − M)⁻¹
+        r_c = lin.r.reshape(-1, k)[m].ravel()
+        r_del = (Q @ r_c).reshape(c, k)
+        Q_ll = Q.reshape(c, k, c, k)[np.arange(c), :, np.arange(c), :]  # (c, k, k) blocks
+        T2 = np.einsum("mi,mij,mj->m", r_del, np.linalg.inv(Q_ll), r_del)
+        Uinv = np.linalg.inv(lin.U[m])
+        C = Uinv @ (Q_ll - np.eye(k)) @ np.swapaxes(Uinv, -1, -2)  # M (I − M)⁻¹ = Q − I
+        out.append((T2, np.einsum("mii->m", C[:, :d, :d])))
     return out
 
 
