@@ -615,7 +615,11 @@ def starved_geometry(df: pd.DataFrame, p: Params) -> np.ndarray:
     """
     if "max_starvation" not in p:
         return np.zeros(len(df), dtype=bool)
-    req, ran = col(df, "ransac_iters_required"), col(df, "ransac_iters_run")
+    return _starved(col(df, "ransac_iters_required"), col(df, "ransac_iters_run"), p)
+
+
+def _starved(req: Any, ran: Any, p: Params) -> Any:
+    """``starved_geometry`` on arrays or on one row's values."""
     with np.errstate(invalid="ignore"):
         return (ran >= 1) & (req > p["max_starvation"] * ran)
 
@@ -776,7 +780,7 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     kf_he, kf_par = _v(row, "kf_h_over_e"), _v(row, "kf_parallax_med_deg")
     out = [f"this frame: h_over_e {_fmt(he)}, parallax_med_deg {_fmt(par)}"]
     req, ran = _v(row, "ransac_iters_required"), _v(row, "ransac_iters_run")
-    if "max_starvation" in p and ran >= 1 and req > p["max_starvation"] * ran:
+    if "max_starvation" in p and _starved(req, ran, p):
         w = _v(row, "inlier_ratio")
         out.append(f"not read: RANSAC was starved (inlier ratio {_fmt(w)} requires {req:.4g} "
                    f"iterations, {ran:.4g} ran; FD-RAN-001): E and H were fitted to a chance "
@@ -1116,7 +1120,8 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
           "rotation, a planar scene, a nearly stationary camera and healthy motion",
           "frame", "camera", ("h_over_e", "parallax_med_deg", "ref_frame", "entropy_norm",
                               "entropy_inliers_norm", "entropy_inliers_shared_norm",
-                              "parallax_med_px", "rot_deg", "rot_only_px"),
+                              "parallax_med_px", "rot_deg", "rot_only_px",
+                              "ransac_iters_required", "ransac_iters_run"),
           {"want": "choice:pure_rotation|planar_degeneracy", "he_degenerate": _NUM,
            "parallax_split_deg": _NUM, "read_at": "choice:keyframe|frame",
            "min_entropy": _NUM, "min_parallax_px": _NUM, "still_rotation_deg": _NUM,
