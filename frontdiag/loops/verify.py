@@ -262,8 +262,8 @@ def screened_groups(group: NDArray[np.int64], in_map: NDArray[np.bool_]) -> list
     return [int(g) for g, c in zip(ids, counts, strict=True) if g >= 0 and 2 * c < in_map.sum()]
 
 
-def _screen_groups(result: LoopAudit, P: F, in_map: NDArray[np.bool_], p_alarm: float
-                   ) -> tuple[NDArray[np.bool_], dict[int, tuple[float, float]]]:
+def _screen_groups(result: LoopAudit, P: F, in_map: NDArray[np.bool_], p_alarm: float,
+                   gids: list[int]) -> tuple[NDArray[np.bool_], dict[int, tuple[float, float]]]:
     """The first map's loops, less the pair-test groups that the map of the others refutes.
 
     Used when the first map is seeded with the pair test's groups (the chains too uncertain to
@@ -283,7 +283,7 @@ def _screen_groups(result: LoopAudit, P: F, in_map: NDArray[np.bool_], p_alarm: 
     group = t["group"].to_numpy()
     out = in_map.copy()
     cand = {}
-    for gid in screened_groups(group, in_map):
+    for gid in gids:
         p, T2 = _leave_out(result, P, out, in_map & (group == gid), seed=gid + 1)
         if p < p_alarm:
             cand[gid] = (p, -T2)
@@ -343,10 +343,9 @@ def verify_against_map(result: LoopAudit) -> None:
     screened: dict[int, tuple[float, float]] = {}  # groups the screen took out of the first map
     taken = np.zeros(len(t), bool)  # and their loops that were in it
 
-    def over_budget(in_map: NDArray[np.bool_]) -> bool:
+    def over_budget(n_groups: int) -> bool:
         """Whether the screen's solves (one per group, each over every pose) exceed
         ``screen_budget``; said in the notes when they do."""
-        n_groups = len(screened_groups(t["group"].to_numpy(), in_map))
         work = n_groups * g.n_vertices * g.k**2
         if work <= screen_budget:
             return False
@@ -392,11 +391,13 @@ def verify_against_map(result: LoopAudit) -> None:
             if st.get("converged", 0.0) and not converged_once:
                 converged_once = True
                 end = max(end, r + max_rounds)
-            if r == 1 and seeded_by_groups and screen and not over_budget(in_map):
+            gids = screened_groups(t["group"].to_numpy(), in_map) \
+                if r == 1 and seeded_by_groups and screen else []
+            if gids and not over_budget(len(gids)):
                 # on the first map, where every group the pair test formed is in (screened on
                 # later maps, after true loops beside the false groups were swamped, intel with
                 # 50 % grouped false loops kept 10 of 128 false loops instead of none)
-                kept, gone = _screen_groups(result, P, in_map, p_alarm)
+                kept, gone = _screen_groups(result, P, in_map, p_alarm, gids)
                 screened.update(gone)
                 taken[:] = in_map & ~kept
                 if taken.any():  # the next round solves the map without them
