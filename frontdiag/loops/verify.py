@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import itertools
 import logging
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -78,21 +79,42 @@ def map_edges(result: LoopAudit, in_map: NDArray[np.bool_]) -> NDArray[np.bool_]
     return edges
 
 
-def map_test(result: LoopAudit, P: F, in_map: NDArray[np.bool_], seed: int = 0) -> dict[str, F]:
-    """Residual of every loop against poses P, and its T² / p-value (see the module doc)."""
+@dataclass
+class MapSystem:
+    """The map of ``in_map`` linearised at poses P: every edge's linearisation (``lin_all``),
+    the map's edges (``sel``) and theirs (``lin``), and the factorised normal matrix."""
+
+    lin_all: Linearised
+    sel: NDArray[np.intp]
+    lin: Linearised
+    fac: Factor
+
+
+def map_system(result: LoopAudit, P: F, in_map: NDArray[np.bool_]) -> MapSystem:
+    """Linearise every edge at P and factorise the normal matrix of the map's edges (the work
+    :func:`map_test` and :func:`leave_cluster_out` share)."""
+    g = result.graph
+    n, k = g.n_vertices, g.k
+    sel = np.flatnonzero(map_edges(result, in_map))
+    U_all = _chol_upper(g.info)
+    lin_all = linearise(P, g.src, g.dst, g.Z, U_all, n)
+    # the map's edges are a subset of every edge: take their linearisation from lin_all
+    lin = Linearised(r=lin_all.r.reshape(-1, k)[sel].ravel(), U=U_all[sel],
+                     Je_i=lin_all.Je_i[sel], Je_j=lin_all.Je_j[sel], e=lin_all.e[sel])
+    H, _ = normal_equations(lin, g.src[sel], g.dst[sel], n, 0.0)
+    return MapSystem(lin_all, sel, lin, Factor(H))
+
+
+def map_test(result: LoopAudit, P: F, in_map: NDArray[np.bool_], seed: int = 0,
+             system: MapSystem | None = None) -> dict[str, F]:
+    """Residual of every loop against poses P, and its T² / p-value (see the module doc);
+    ``system`` is :func:`map_system` of the same P and map, if already built."""
     g = result.graph
     loops = result.table["edge"].to_numpy()
     n, k = g.n_vertices, g.k
-    edges = map_edges(result, in_map)
-    sel = np.flatnonzero(edges)
-    U_all = _chol_upper(g.info)
-    lin_all = linearise(P, g.src, g.dst, g.Z, U_all, n)
-    e_all = lin_all.e
-    # the map's edges are a subset of every edge: take their linearisation from lin_all
-    lin = Linearised(r=lin_all.r.reshape(-1, k)[sel].ravel(), U=U_all[sel],
-                     Je_i=lin_all.Je_i[sel], Je_j=lin_all.Je_j[sel], e=e_all[sel])
-    H, _ = normal_equations(lin, g.src[sel], g.dst[sel], n, 0.0)
-    fac = Factor(H)
+    sys_ = system or map_system(result, P, in_map)
+    lin_all, sel, lin, fac = sys_.lin_all, sys_.sel, sys_.lin, sys_.fac
+    U_all, e_all = lin_all.U, lin_all.e
     rng = np.random.default_rng(seed)
     noise = rng.standard_normal((g.n_edges, k, N_DRAWS))
     # Aᵀ n for the map's edges
@@ -181,10 +203,12 @@ def _corroborate(result: LoopAudit, P: F, in_map: NDArray[np.bool_], res: dict[s
     g = result.graph
     held = in_map | cand
     P_all, _ = solve(g, map_edges(result, held), P, tol=1e-6)
-    sigma0_sq = float(map_test(result, P_all, held, seed=int(loops[idx[0]]))["sigma0_sq"][0])
-    tests = leave_cluster_out(result, P_all, held, [idx[label == c] for c in clusters.tolist()])
-    for mine, (T2, var) in zip((idx[label == c] for c in clusters.tolist()), tests,
-                               strict=True):
+    system = map_system(result, P_all, held)
+    sigma0_sq = float(map_test(result, P_all, held, seed=int(loops[idx[0]]),
+                               system=system)["sigma0_sq"][0])
+    members = [idx[label == c] for c in clusters.tolist()]
+    tests = leave_cluster_out(result, P_all, held, members, system)
+    for mine, (T2, var) in zip(members, tests, strict=True):
         p = chi2_dist.sf(T2 / sigma0_sq, g.k)
         ok = (p >= p_alarm) & (np.sqrt(var * sigma0_sq) <= power_m)
         out[mine[ok]] = True
@@ -192,7 +216,8 @@ def _corroborate(result: LoopAudit, P: F, in_map: NDArray[np.bool_], res: dict[s
 
 
 def leave_cluster_out(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
-                      clusters: list[NDArray[np.int64]]) -> list[tuple[F, F]]:
+                      clusters: list[NDArray[np.int64]], system: MapSystem | None = None
+                      ) -> list[tuple[F, F]]:
     """For each cluster (table rows of loops in the map of ``in_map``, solved at ``P``), every
     one of its loops' T² and translation variance against the map without the cluster, before
     the variance factor; one factorisation for all clusters.
@@ -211,11 +236,8 @@ def leave_cluster_out(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
     g = result.graph
     k, n, d = g.k, g.n_vertices, g.dim
     loops = result.table["edge"].to_numpy()
-    sel = np.flatnonzero(map_edges(result, in_map))
-    U = _chol_upper(g.info[sel])
-    lin = linearise(P, g.src[sel], g.dst[sel], g.Z[sel], U, n)
-    H, _ = normal_equations(lin, g.src[sel], g.dst[sel], n, 0.0)
-    fac = Factor(H)
+    sys_ = system or map_system(result, P, in_map)
+    sel, lin, fac = sys_.sel, sys_.lin, sys_.fac
     where = np.full(g.n_edges, -1)
     where[sel] = np.arange(sel.size)
     out = []
@@ -227,7 +249,7 @@ def leave_cluster_out(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
         c = m.size
         At = np.zeros((n * k, c * k))  # A_cᵀ, one column per whitened residual row
         cols = np.arange(c * k).reshape(c, k)
-        for blk, verts in ((Wi, g.src[sel][m]), (Wj, g.dst[sel][m])):
+        for blk, verts in ((Wi, g.src[sel[m]]), (Wj, g.dst[sel[m]])):
             rr = (verts[:, None, None] * k + np.arange(k)[None, None, :])  # (c, 1, k) rows
             At[np.broadcast_to(rr, (c, k, k)).ravel(),
                np.broadcast_to(cols[:, :, None], (c, k, k)).ravel()] += blk.ravel()
