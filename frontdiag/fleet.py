@@ -130,13 +130,9 @@ class Task:
 def analyse_one(task: Task) -> dict[str, Any]:
     """Analyse one recording into its result folder and return its summary row; a recording
     whose folder already holds a result of the same content, rules and options is skipped."""
-    import cv2
-    from threadpoolctl import threadpool_limits
+    from frontdiag.parallel import interruptible, one_core
 
-    from frontdiag.parallel import interruptible
-
-    cv2.setNumThreads(1)  # the tasks are the parallelism
-    with interruptible(), threadpool_limits(limits=1, user_api="blas"):
+    with interruptible(), one_core():
         return _analyse_one(task)
 
 

@@ -98,6 +98,19 @@ def worker_init() -> None:
 
 
 @contextmanager
+def one_core() -> Iterator[None]:
+    """A task that is itself the parallelism (a window, a recording of a fleet): OpenCV and
+    BLAS on one thread each, so that N tasks use N cores and not N x threads. OpenCV's setting
+    stays for the process (a worker runs only such tasks); BLAS's is restored after."""
+    import cv2
+    from threadpoolctl import threadpool_limits
+
+    cv2.setNumThreads(1)
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield
+
+
+@contextmanager
 def interruptible() -> Iterator[None]:
     """In a pool worker (see :func:`worker_init`): Ctrl-C and SIGTERM during the block raise
     KeyboardInterrupt, which the pass turns into "interrupted, frames so far kept". Elsewhere
@@ -159,13 +172,8 @@ def _task(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
           frames: FrameWindow | None, resume: Any = None, until_keys: dict[int, Any] | None = None
           ) -> StreamRun:
     """One window (or the whole LiDAR stream) in a worker process."""
-    import cv2
-    from threadpoolctl import threadpool_limits
-
-    cv2.setNumThreads(1)  # one core per worker: the workers are the parallelism
     until = None if until_keys is None else (lambda f, key: until_keys.get(f) == key)
-    with interruptible(), threadpool_limits(limits=1, user_api="blas"), \
-            open_recording(path) as rec:
+    with interruptible(), one_core(), open_recording(path) as rec:
         run = run_stream(rec, choice, opts, intr, frames=frames, resume=resume, until=until,
                          record_keys=frames is not None,
                          want_end_state=frames is not None)
