@@ -94,6 +94,9 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
        "(row itself, rows near an exposure step, matched over > 1/3 s or at/above the 0.70 line "
        "left out); NaN where fewer than 10 rows or a quarter of the window remain "
        "(FD-REP-001 baseline_* params)"),
+    _M("ratio_reject_base_window_s", "s", "camera",
+       "the window ratio_reject_base was read over: 10 s, or wider where no level formed within "
+       "10 s (doubling up to the whole recording, FD-REP-001 baseline_widen_max_s)"),
     _M("ratio_reject_base_sigma", "ratio", "camera",
        "robust spread of ratio_reject_base: (median - lower quartile) / 0.6745 of the same rows"),
     _M("n_keypoints_base", "count", "camera",

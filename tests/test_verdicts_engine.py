@@ -122,6 +122,31 @@ def test_repetition_is_read_between_frames_of_a_tracking_rate(ruleset, rate_hz, 
     assert all(("repetitive_structure" in conds(res, f)) == expected for f in range(7, 15))
 
 
+def test_where_no_level_forms_nearby_the_baseline_widens_to_the_recordings_own(ruleset) -> None:
+    """A drive at 10 Hz whose rejection sits at 72 % for 20 s (no twins) inside a recording
+    that runs at 60 % elsewhere: within 10 s no level forms (three quarters of the rows at or
+    over the 70 % line), the window widens until one does, and the stretch is read against the
+    recording's 60 %, not the absolute line. A recording that is one aisle throughout has no
+    level at any width, and the absolute line still reads it."""
+    from frontdiag.verdicts.explain import explain_row
+
+    rej = np.full(400, 0.60)
+    rej[150:350] = 0.72
+    t = frames(400, {i: {"ratio_reject_rate": float(rej[i]), "ratio_ambiguous_rate": 0.1}
+                     for i in range(400)}, rate_hz=10.0)
+    res = evaluate(t, ruleset)
+    mid = res.table.loc[250]
+    assert mid["ratio_reject_base_window_s"] > 10 and 0.55 < mid["ratio_reject_base"] < 0.65
+    assert not any("repetitive_structure" in conds(res, f) for f in range(400))
+    lines = next(e for e in explain_row(res, 250) if e.rule.id == "FD-REP-001").check_lines
+    assert any("the window widened to the nearest level" in ln for ln in lines)
+    aisle = evaluate(frames(100, {range(100): {"ratio_reject_rate": 0.85,
+                                               "ratio_ambiguous_rate": 0.03}}, rate_hz=10.0),
+                     ruleset)
+    assert np.isnan(aisle.table["ratio_reject_base"]).all()
+    assert all("repetitive_structure" in conds(aisle, f) for f in range(5, 95))
+
+
 def test_a_gap_the_frontend_restarted_after_is_not_a_declined_row(ruleset) -> None:
     # after a gap the frontend matches nothing (no rejection reading): nothing was declined
     t = frames(20)

@@ -23,6 +23,8 @@ frames after a gap borrow theirs from the frames after them. Where fewer than ``
 rows, or less than ``min_share`` of the window's readable rows, are left to form it, the
 baseline is NaN and only the absolute line reads the row: a recording that is one long episode
 (an aisle from its first frame to its last) has no healthy level of its own to compare with.
+``widening_baseline`` first doubles the window for such rows until a level forms (a street that
+sits at the absolute line for seconds finds the level of the drive around it).
 """
 
 from __future__ import annotations
@@ -34,11 +36,13 @@ QUARTILE_TO_SIGMA = 0.6745  # median - lower quartile of a Gaussian, in standard
 
 def rolling_baseline(t_s: np.ndarray, x: np.ndarray, window_s: float, min_rows: int,
                      min_share: float, exclude: np.ndarray | None = None,
-                     gap_intervals: float = 5.0) -> tuple[np.ndarray, np.ndarray]:
+                     gap_intervals: float = 5.0, rows: np.ndarray | None = None
+                     ) -> tuple[np.ndarray, np.ndarray]:
     """(lower quartile, robust sigma) per row over the other non-excluded rows within
     window_s / 2.
 
-    Rows must be in time order; NaN values and excluded rows never enter a baseline.
+    Rows must be in time order; NaN values and excluded rows never enter a baseline. With
+    ``rows`` (indices), only those rows are computed; the others stay NaN.
     """
     n = len(x)
     med = np.full(n, np.nan)
@@ -60,7 +64,7 @@ def rolling_baseline(t_s: np.ndarray, x: np.ndarray, window_s: float, min_rows: 
         last = np.searchsorted(seg, seg, side="right")
         lo, hi = np.maximum(lo, first), np.minimum(hi, last)
     c_read = np.concatenate([[0], np.cumsum(readable)])
-    for i in range(n):
+    for i in (range(n) if rows is None else rows.tolist()):
         a, b = int(lo[i]), int(hi[i])
         sel = usable[a:b].copy()
         sel[i - a] = False
@@ -72,3 +76,30 @@ def rolling_baseline(t_s: np.ndarray, x: np.ndarray, window_s: float, min_rows: 
         med[i] = q25
         sig[i] = (q50 - q25) / QUARTILE_TO_SIGMA
     return med, sig
+
+
+def widening_baseline(t_s: np.ndarray, x: np.ndarray, window_s: float, min_rows: int,
+                      min_share: float, exclude: np.ndarray | None = None,
+                      gap_intervals: float = 5.0, max_window_s: float = np.inf
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``rolling_baseline``, and where its window leaves a row without a level, the nearest
+    level of the recording's own: the window doubles until one forms, or until it spans the
+    whole stretch between gaps or reaches ``max_window_s``. Returns (lower quartile, robust sigma, window used in seconds; NaN
+    where no level formed at any width)."""
+    base, sig = rolling_baseline(t_s, x, window_s, min_rows, min_share, exclude, gap_intervals)
+    used = np.where(np.isnan(base), np.nan, float(window_s))
+    n = len(x)
+    if n < 2:
+        return base, sig, used
+    clock = t_s if np.isfinite(t_s).all() else np.arange(n, dtype=float)
+    # a window 2 x the recording's span reaches every row from any row
+    whole = min(2.0 * float(clock[-1] - clock[0]), float(max_window_s))
+    w = float(window_s)
+    while w < whole and np.isnan(base).any():
+        w = min(2.0 * w, whole)
+        todo = np.flatnonzero(np.isnan(base))
+        b, sg = rolling_baseline(t_s, x, w, min_rows, min_share, exclude, gap_intervals,
+                                 rows=todo)
+        got = todo[~np.isnan(b[todo])]
+        base[got], sig[got], used[got] = b[got], sg[got], w
+    return base, sig, used

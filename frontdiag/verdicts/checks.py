@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from frontdiag.camera.geometry import homography_threshold_px
-from frontdiag.verdicts.baseline import rolling_baseline
+from frontdiag.verdicts.baseline import rolling_baseline, widening_baseline
 
 Params = Mapping[str, Any]
 
@@ -134,10 +134,18 @@ def _matching_baseline(df: pd.DataFrame, p: Params) -> pd.DataFrame:
     with np.errstate(invalid="ignore"):
         near = _after_step(col(df, "d_mean_intensity"), p["dmean_step"], p["recovery_frames"])
         exclude = near | _wide_interval(df, p) | (rej >= p["reject_repetitive"])
-    base, sig = _scene_baseline(df, p, "ratio_reject_rate", exclude)
+    if p.get("baseline_widen_max_s", 0) > p["baseline_window_s"]:
+        # no level within the window (a street that sits at the line for seconds): the nearest
+        # level of the recording's own, before the absolute line
+        base, sig, used = widening_baseline(
+            col(df, "t_ns") / 1e9, rej, p["baseline_window_s"], int(p["baseline_min_rows"]),
+            p["baseline_min_share"], exclude, max_window_s=p["baseline_widen_max_s"])
+    else:
+        base, sig = _scene_baseline(df, p, "ratio_reject_rate", exclude)
+        used = np.where(np.isnan(base), np.nan, p["baseline_window_s"])
     kp_base, _ = _scene_baseline(df, p, "n_keypoints", _wide_interval(df, p))
     return pd.DataFrame({"ratio_reject_base": base, "ratio_reject_base_sigma": sig,
-                         "n_keypoints_base": kp_base})
+                         "ratio_reject_base_window_s": used, "n_keypoints_base": kp_base})
 
 
 def reject_excess(rej: np.ndarray, base: np.ndarray) -> np.ndarray:
@@ -207,16 +215,22 @@ def _relative_rejection_words(row: Mapping[str, Any], p: Params) -> str:
                                            "ratio_reject_base_sigma"))
     kp, kp_base = _v(row, "n_keypoints"), _v(row, "n_keypoints_base")
     if np.isnan(base):
+        span = (f"{p['baseline_window_s']:g} s, nor in any wider window of the recording"
+                if p.get("baseline_widen_max_s", 0) > p["baseline_window_s"]
+                else f"{p['baseline_window_s']:g} s")
         return (f"relative: no baseline of the recording's own (fewer than "
                 f"{p['baseline_min_rows']:g} rows, or under {p['baseline_min_share']:.0%} of "
-                f"them, below the absolute line within {p['baseline_window_s']:g} s): the "
-                "absolute line decides")
+                f"them, below the absolute line within {span}): the absolute line decides")
     exc = float(reject_excess(np.array([rej]), np.array([base]))[0])
     above = exc >= p["reject_excess"] and rej - base > p["baseline_sigmas"] * sig
     kept = not kp < p["keypoints_kept"] * kp_base
+    win = _v(row, "ratio_reject_base_window_s")
+    within = f"{p['baseline_window_s']:g} s"
+    if not np.isnan(win) and win > p["baseline_window_s"]:
+        within = (f"{win:.3g} s; no level formed within {p['baseline_window_s']:g} s, so the "
+                  "window widened to the nearest level of the recording's own")
     words = (f"relative (decides): scene baseline {base:.0%} (robust sigma {sig:.1%}, lower "
-             f"quartile of the rows within {p['baseline_window_s']:g} s under the absolute "
-             f"line); this "
+             f"quartile of the rows under the absolute line within {within}); this "
              f"frame refuses {exc:.0%} of what the scene keeps (line {p['reject_excess']:.0%}, "
              f"and > {p['baseline_sigmas']:g} sigma); keypoints {kp:.0f} vs the scene's "
              f"{kp_base:.0f}")
@@ -1085,14 +1099,15 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
           {"fill_floor": _NUM, "reject_repetitive": _NUM, "dmean_step": _NUM,
            "recovery_frames": _NUM, "max_interval_s": _NUM, **_BASELINE_PARAMS,
            "reject_excess": _NUM, "baseline_sigmas": _NUM, "keypoints_kept": _NUM,
-           "ambiguous_repetitive": _NUM},
+           "ambiguous_repetitive": _NUM, "baseline_widen_max_s": _NUM},
           {"n_keypoints": "min", "ratio_reject_rate": "max"},
           {"fill_floor": "keypoint_fill", "reject_repetitive": "ratio_reject_rate",
            "dmean_step": "d_mean_intensity", "reject_excess": "ratio_reject_base",
            "ambiguous_repetitive": "ratio_ambiguous_rate"},
           frame=_matching_table, explain=_matching_table_explain, context=_matching_context,
           optional=frozenset({"max_interval_s", "reject_excess", "baseline_sigmas",
-                              "keypoints_kept", "ambiguous_repetitive", *_BASELINE_PARAMS}),
+                              "keypoints_kept", "ambiguous_repetitive", "baseline_widen_max_s",
+                              *_BASELINE_PARAMS}),
           unread=_matching_unread, baseline=_matching_baseline),
     Check("exposure_step", "a jump of mean intensity with the photometric residual "
           "jumping with it, clean before and clean again within 2-3 frames",
