@@ -249,3 +249,24 @@ def test_label_aid_reads_the_gain_between_two_views(gain: float) -> None:
     ratio, n = label_aid.pair_ratio(a, b)
     assert n >= 30
     assert ratio == pytest.approx(gain, abs=0.02)
+
+
+def test_label_aid_can_leave_out_clipped_patches() -> None:
+    """With lines that saturate in both frames across most of the view, a gain of 1.10 reads
+    low when the patches touching them are kept (their clipped pixels stay at 255) and 1.10
+    when they are left out (`--unclipped`)."""
+    from validation import label_aid
+
+    rng = np.random.default_rng(5)
+    base = cv2.GaussianBlur(rng.uniform(0, 1, (480, 640)).astype(np.float32), (0, 0), 2.0)
+    base = 40 + 150 * (base - base.min()) / (base.max() - base.min())
+    base[:300:8, :] = 400.0  # bright lines over the top of the view: saturated in both frames
+    a = np.clip(base, 0, 255).astype(np.uint8)
+    shifted = np.vstack([np.roll(base, (5, 9), axis=(0, 1))[:240],
+                         np.roll(base, (5, 2), axis=(0, 1))[240:]])
+    b = np.clip(shifted * 1.10, 0, 255).astype(np.uint8)
+    kept, n = label_aid.pair_ratio(a, b)
+    left_out, n2 = label_aid.pair_ratio(a, b, unclipped=True)
+    assert n >= 30 and n2 == n
+    assert left_out == pytest.approx(1.10, abs=0.02)
+    assert kept < left_out - 0.01

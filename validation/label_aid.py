@@ -1,7 +1,7 @@
 """Measured aid to the exposure labels: the brightness ratio of the same surfaces between
 consecutive frames of a built validation recording.
 
-    python validation/label_aid.py /work/valdata/dev/churchill_print [more recordings...]
+    python validation/label_aid.py [--unclipped] /work/valdata/dev/churchill_print [more...]
 
 Per consecutive pair: OpenCV's own ORB (2000 features, not frontdiag's extractor), brute-force
 Hamming matches with Lowe's ratio test (0.8), verified by a fundamental matrix (USAC MAGSAC,
@@ -9,6 +9,11 @@ Hamming matches with Lowe's ratio test (0.8), verified by a fundamental matrix (
 previous). The README's exposure criterion reads this number: at least 10 % brighter or darker
 is a step, 6-10 % is left unlabelled. The ratio is independent of every rule of frontdiag; it
 is printed with the number of verified matches it rests on (under 30 it is not used).
+
+`--unclipped` leaves out the patches holding a pixel at 0 or 255 in either frame (a clipped
+pixel does not follow a gain change). The labels were measured without it; it measures how
+much they depend on clipped patches (README: on sunny KITTI frames 79-90 % of the matched
+patches hold a saturated pixel).
 """
 
 from __future__ import annotations
@@ -35,7 +40,13 @@ def patch_means(gray: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return s / (2 * HALF + 1) ** 2
 
 
-def pair_ratio(a: np.ndarray, b: np.ndarray) -> tuple[float, int]:
+def clipped(gray: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Whether each 9x9 patch holds a pixel at 0 or 255."""
+    bad = ((gray == 0) | (gray == 255)).astype(np.float64)
+    return patch_means(bad, xy) > 0
+
+
+def pair_ratio(a: np.ndarray, b: np.ndarray, unclipped: bool = False) -> tuple[float, int]:
     orb = cv2.ORB.create(2000)
     ka, da = orb.detectAndCompute(a, None)
     kb, db = orb.detectAndCompute(b, None)
@@ -54,12 +65,16 @@ def pair_ratio(a: np.ndarray, b: np.ndarray) -> tuple[float, int]:
     ok = mask.ravel().astype(bool)
     ma, mb = patch_means(a, pa[ok]), patch_means(b, pb[ok])
     keep = (ma > 5) & (mb > 5)
+    if unclipped:
+        keep &= ~clipped(a, pa[ok]) & ~clipped(b, pb[ok])
     if not keep.any():
         return float("nan"), int(ok.sum())
     return float(np.median(mb[keep] / ma[keep])), int(ok.sum())
 
 
-def main(paths: list[str]) -> int:
+def main(argv: list[str]) -> int:
+    unclipped = "--unclipped" in argv
+    paths = [a for a in argv if a != "--unclipped"]
     for p in paths:
         with open_recording(Path(p)) as rec:
             ch = choose_topics(rec.topics, use_lidar=False)
@@ -69,7 +84,7 @@ def main(paths: list[str]) -> int:
             prev = None
             for f in iter_camera_frames(rec, ch.camera, ch.camera_type):
                 if prev is not None:
-                    r, n = pair_ratio(prev, f.gray)
+                    r, n = pair_ratio(prev, f.gray, unclipped)
                     print(f"{Path(p).name}  frame {f.index:3d}  ratio {r:6.3f}  "
                           f"({n} verified matches)  frame mean {prev.mean():6.1f} -> "
                           f"{f.gray.mean():6.1f}")
