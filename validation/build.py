@@ -152,6 +152,8 @@ def decode(data: bytes, where: str) -> np.ndarray:
     img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
     if img is None:
         raise ConfigError(f"{where}: not a decodable image")
+    if img.ndim == 3 and img.shape[2] == 4:  # an alpha channel carries no image content
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2BGR)
     return img
 
 
@@ -195,6 +197,8 @@ def stamps_of(rec: dict[str, Any], src: Source, n: int,
         return [int(Decimal(Path(e["path"]).stem) * 1_000_000_000) for e in files]
     if kind == "filename_ns":
         return [int(Path(e["path"]).stem) for e in rec["frames"]["files"]]
+    if kind == "filename_us":
+        return [int(Path(e["path"]).stem) * 1000 for e in rec["frames"]["files"]]
     if kind == "times_txt":
         lines = checked(stamp_src or src, st).decode().split()
         first = int(st.get("first", 0))
