@@ -134,6 +134,18 @@ class Source:
                           hint=f"fetch github:{self.repo} (commit {self.commit}) or pass --src")
 
 
+def aid_source(name: str, doc: str) -> tuple[dict[str, Any], Source]:
+    """For a labelling aid's command line: the manifest entry of recording ``name`` and its
+    source, found under ``--src`` (default /work/.mirror)."""
+    ap = argparse.ArgumentParser(description=doc.split("\n\n")[0])
+    ap.add_argument("--src", type=Path, default=DEFAULT_SRC)
+    a = ap.parse_args()
+    m = load_manifest(MANIFEST)
+    rec = next(r for r in m["recordings"] if r["name"] == name)
+    s = m["sources"][rec["source"]]
+    return rec, Source(s["repo"], s["commit"], a.src)
+
+
 def sha256(data: bytes) -> str:
     return hashlib.sha256(data).hexdigest()
 

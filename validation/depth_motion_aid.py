@@ -15,27 +15,18 @@ is involved.
 
 from __future__ import annotations
 
-import argparse
-from pathlib import Path
-
 import cv2
 import numpy as np
 
 from frontdiag.errors import ConfigError
-from validation.build import DEFAULT_SRC, MANIFEST, Source, checked, decode, load_manifest
+from validation.build import aid_source, checked, decode
 
 NAME = "realsense_office"
 WINDOW_S = 0.2
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--src", type=Path, default=DEFAULT_SRC)
-    a = ap.parse_args()
-    m = load_manifest(MANIFEST)
-    rec = next(r for r in m["recordings"] if r["name"] == NAME)
-    s = m["sources"][rec["source"]]
-    src = Source(s["repo"], s["commit"], a.src)
+    rec, src = aid_source(NAME, __doc__ or "")
     cam = rec["camera"]
     fx, fy, cx, cy = (float(cam[k]) for k in ("fx", "fy", "cx", "cy"))
     K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])

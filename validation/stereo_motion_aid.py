@@ -22,13 +22,12 @@ no rule of frontdiag is involved.
 
 from __future__ import annotations
 
-import argparse
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from validation.build import DEFAULT_SRC, MANIFEST, Source, checked, decode, load_manifest
+from validation.build import aid_source, checked, decode
 
 NAME = "zed_lab"
 WINDOW_S = 0.2
@@ -51,13 +50,7 @@ def quat_angle_deg(q1: np.ndarray, q2: np.ndarray) -> float:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--src", type=Path, default=DEFAULT_SRC)
-    a = ap.parse_args()
-    m = load_manifest(MANIFEST)
-    rec = next(r for r in m["recordings"] if r["name"] == NAME)
-    s = m["sources"][rec["source"]]
-    src = Source(s["repo"], s["commit"], a.src)
+    rec, src = aid_source(NAME, __doc__ or "")
     calib = src.read("SVO/data/calib_stereo.txt").decode().split()
     focal, baseline = float(calib[1]), float(calib[-1])
     gt = {}
