@@ -83,9 +83,12 @@ def widening_baseline(t_s: np.ndarray, x: np.ndarray, window_s: float, min_rows:
                       gap_intervals: float = 5.0, max_window_s: float = np.inf
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``rolling_baseline``, and where its window leaves a row without a level, the nearest
-    level of the recording's own: the window doubles until one forms, or until it spans the
-    whole stretch between gaps or reaches ``max_window_s``. Returns (lower quartile, robust sigma, window used in seconds; NaN
-    where no level formed at any width)."""
+    level of the recording's own: the window doubles until one forms, until it spans the whole
+    recording (never across a gap) or until it reaches ``max_window_s``.
+
+    Returns (lower quartile, robust sigma, window used in seconds); all NaN on the rows where
+    no level formed at any width.
+    """
     base, sig = rolling_baseline(t_s, x, window_s, min_rows, min_share, exclude, gap_intervals)
     used = np.where(np.isnan(base), np.nan, float(window_s))
     n = len(x)

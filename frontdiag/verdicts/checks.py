@@ -134,18 +134,20 @@ def _matching_baseline(df: pd.DataFrame, p: Params) -> pd.DataFrame:
     with np.errstate(invalid="ignore"):
         near = _after_step(col(df, "d_mean_intensity"), p["dmean_step"], p["recovery_frames"])
         exclude = near | _wide_interval(df, p) | (rej >= p["reject_repetitive"])
-    if p.get("baseline_widen_max_s", 0) > p["baseline_window_s"]:
-        # no level within the window (a street that sits at the line for seconds): the nearest
-        # level of the recording's own, before the absolute line
-        base, sig, used = widening_baseline(
-            col(df, "t_ns") / 1e9, rej, p["baseline_window_s"], int(p["baseline_min_rows"]),
-            p["baseline_min_share"], exclude, max_window_s=p["baseline_widen_max_s"])
-    else:
-        base, sig = _scene_baseline(df, p, "ratio_reject_rate", exclude)
-        used = np.where(np.isnan(base), np.nan, p["baseline_window_s"])
+    # no level within the window (a street that sits at the line for seconds): the nearest
+    # level of the recording's own, before the absolute line (a rule without
+    # baseline_widen_max_s keeps its window)
+    base, sig, used = widening_baseline(
+        col(df, "t_ns") / 1e9, rej, p["baseline_window_s"], int(p["baseline_min_rows"]),
+        p["baseline_min_share"], exclude, max_window_s=_widen_max_s(p))
     kp_base, _ = _scene_baseline(df, p, "n_keypoints", _wide_interval(df, p))
     return pd.DataFrame({"ratio_reject_base": base, "ratio_reject_base_sigma": sig,
                          "ratio_reject_base_window_s": used, "n_keypoints_base": kp_base})
+
+
+def _widen_max_s(p: Params) -> float:
+    """The widest window FD-REP-001's baseline may take (its own window if it does not widen)."""
+    return float(max(p.get("baseline_widen_max_s", 0), p["baseline_window_s"]))
 
 
 def reject_excess(rej: np.ndarray, base: np.ndarray) -> np.ndarray:
@@ -215,9 +217,9 @@ def _relative_rejection_words(row: Mapping[str, Any], p: Params) -> str:
                                            "ratio_reject_base_sigma"))
     kp, kp_base = _v(row, "n_keypoints"), _v(row, "n_keypoints_base")
     if np.isnan(base):
-        span = (f"{p['baseline_window_s']:g} s, nor in any wider window of the recording"
-                if p.get("baseline_widen_max_s", 0) > p["baseline_window_s"]
-                else f"{p['baseline_window_s']:g} s")
+        span = f"{p['baseline_window_s']:g} s"
+        if _widen_max_s(p) > p["baseline_window_s"]:
+            span += ", nor in any wider window of the recording"
         return (f"relative: no baseline of the recording's own (fewer than "
                 f"{p['baseline_min_rows']:g} rows, or under {p['baseline_min_share']:.0%} of "
                 f"them, below the absolute line within {span}): the absolute line decides")
