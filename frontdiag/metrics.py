@@ -131,6 +131,10 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
        "camera only turned (or stood still), whatever the accuracy of K; read only where H/E "
        "is above 0.9 with parallax >= 0.3 deg (on the frame or its interval), the only "
        "readings it can change", "none"),
+    _M("epi_residual_px", "px", "camera",
+       "median Sampson distance of the essential inliers to E's epipolar geometry: the "
+       "localisation noise E leaves (0.674 sigma for a correct E); a rotation alone leaves "
+       "rot_only_px near 2.47x it, a translation more"),
     _M("rot_focal_scale", "ratio", "camera",
        "focal length, as a multiple of the given one, at which rot_only_px is smallest"),
     _M("ref2_frame", "", "camera",

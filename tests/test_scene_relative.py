@@ -288,3 +288,59 @@ def test_h_over_e_high_with_a_rotation_fit_reads_rotation_not_planar(ruleset) ->
     assert hits(res, "pure_rotation")[12:28].all() and not hits(res, "planar_degeneracy").any()
     res = evaluate(frames(40, {range(10, 30): {**pan, "rot_only_px": 14.0}}), ruleset)
     assert hits(res, "planar_degeneracy")[12:28].all() and not hits(res, "pure_rotation").any()
+
+
+def _turn_with_baseline(baseline_m: float, noise: float) -> tuple[float, float]:
+    """A 6 deg turn through the test scene (2-8 m deep) with a sideways baseline: the
+    rotation-only residual (px) and E's median Sampson residual (px) over E's inliers."""
+    P = _scene(400, seed=21)
+    R = cv2.Rodrigues(np.array([0.01, np.radians(6.0), 0.0]))[0]
+    p0 = _project(P, K_TRUE, np.eye(3), np.zeros(3), noise, seed=22)
+    p1 = _project(P, K_TRUE, R, np.array([-baseline_m, 0.0, 0.0]), noise, seed=23)
+    tv = two_view(p0, p1, K_TRUE)
+    assert tv.inlier_mask is not None
+    resid, _ = rotation_only_fit(p0[tv.inlier_mask], p1[tv.inlier_mask], K_TRUE)
+    return resid, tv.epi_residual_px
+
+
+def test_e_leaves_the_localisation_noise_and_a_rotation_two_and_a_half_times_it() -> None:
+    """With noise sigma in each coordinate of both images a correct E's Sampson residual is
+    |N(0, sigma^2)| (median 0.674 sigma) and a rotation that is the whole motion leaves a 2-D
+    transfer error of median 1.665 sigma: 2.47 times E's, the noise-only ratio FD-ROT-001's
+    rot_fit_noise_ratio is read against."""
+    resid, epi = _turn_with_baseline(0.0, 0.7)
+    assert epi == pytest.approx(0.674 * 0.7, rel=0.1)
+    assert resid == pytest.approx(1.665 * 0.7, rel=0.1)
+    assert resid / epi == pytest.approx(2.47, rel=0.1)
+
+
+def test_a_turn_with_a_measurable_baseline_is_told_from_a_turn_by_es_residual() -> None:
+    """3 cm of baseline in a 6 deg turn: the rotation still fits within the 2.45 px line, but at
+    over 4 times E's residual; the turn alone stays near 2.5 times it."""
+    resid, epi = _turn_with_baseline(0.03, 0.7)
+    assert resid <= homography_threshold_px(1.0)
+    assert resid / epi > 4.0
+    resid0, epi0 = _turn_with_baseline(0.0, 0.7)
+    assert resid0 / epi0 < 3.0
+
+
+@pytest.mark.parametrize(("epi", "want"), [
+    (np.nan, ["pure_rotation"]),   # no E residual (an older table): the pixel line decides
+    (0.6, ["pure_rotation"]),      # 1.5 px is 2.5x E's 0.6 px: the noise a rotation leaves
+    (0.3, []),                     # 5x E's 0.3 px: a translation E absorbs and no rotation does
+])
+def test_a_rotation_fit_counts_only_within_a_multiple_of_es_own_residual(ruleset, epi,
+                                                                         want) -> None:
+    """A hand-held 30 Hz walk turns 2-10 deg per keyframe interval while moving: its rotation
+    fits within 2.45 px (1.5-2.4 px) at 3-6 times E's residual of 0.3-0.6 px. The pixel line
+    assumes 1 px of noise; E's residual measures the noise these correspondences have."""
+    row = {"h_over_e": 0.7, "parallax_med_deg": 6.0, "parallax_med_px": 50.0, "rot_deg": 20.0,
+           "rot_only_px": 1.5, "epi_residual_px": epi}
+    res = evaluate(frames(20, {range(5, 15): row}), ruleset)
+    assert hits(res, "pure_rotation")[10] == bool(want)
+    lines = next(e for e in explain_row(res, 10) if e.rule.id == "FD-ROT-001").check_lines
+    rel = [ln for ln in lines if "E's own residual" in ln]
+    assert len(rel) == (0 if np.isnan(epi) else 1)
+    if rel:
+        assert f"{1.5 / epi:.2g}x" in rel[0]
+        assert ("beyond what the localisation noise explains" in rel[0]) == (not want)

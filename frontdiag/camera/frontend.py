@@ -180,6 +180,7 @@ def _row_template() -> dict[str, Any]:
         "inliers_e": NAN, "inliers_h": NAN, "h_over_e": NAN, "inlier_ratio": NAN,
         "ransac_iters_required": NAN, "ransac_iters_run": NAN, "parallax_med_deg": NAN,
         "parallax_med_px": NAN, "rot_deg": NAN, "rot_only_px": NAN, "rot_focal_scale": NAN,
+        "epi_residual_px": NAN,
         "t_dir_change_deg": NAN, "pose_info_cond": NAN,
         "ref2_frame": -1, "h_over_e_2kf": NAN, "parallax_med_deg_2kf": NAN,
         "parallax_med_px_2kf": NAN,
@@ -333,7 +334,7 @@ class CameraFrontend:
             return False
         row.update(inliers_e=tv.inliers_e, h_over_e=tv.h_over_e, inlier_ratio=tv.inlier_ratio,
                    rot_deg=tv.rot_deg, parallax_med_deg=tv.parallax_med_deg,
-                   pose_info_cond=tv.pose_info_cond,
+                   pose_info_cond=tv.pose_info_cond, epi_residual_px=tv.epi_residual_px,
                    ransac_iters_required=ransac_iters_required(tv.inlier_ratio, E_SAMPLE,
                                                                p.ransac_confidence),
                    ransac_iters_run=ransac_iters_run(tv.inlier_ratio, p.ransac_max_iters,

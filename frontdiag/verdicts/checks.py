@@ -510,15 +510,16 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
 
 def _quadrant(he: np.ndarray, par: np.ndarray, p: Params,
               rot_px: np.ndarray | None = None, rot: np.ndarray | None = None,
-              par_px: np.ndarray | None = None, turn_px: np.ndarray | None = None
-              ) -> np.ndarray:
+              par_px: np.ndarray | None = None, turn_px: np.ndarray | None = None,
+              noise: np.ndarray | None = None) -> np.ndarray:
     """0 healthy, 1 nearly stationary, 2 planar, 3 pure rotation, -1 not computable.
 
     Parallax is low below parallax_split_deg, or, where the rule sets rot_fit_px, where a
     rotation-only model (the focal free within a factor of 2) explains the correspondences
-    within rot_fit_px: the angle is de-rotated with the given K, which an approximate K leaves
-    inflated by the rotation it failed to remove, while the rotation-only residual is in pixels
-    and does not trust K.
+    within rot_fit_px (and, where the rule sets rot_fit_noise_ratio, within that multiple of
+    E's own residual, ``noise``: :func:`rotation_explains`): the angle is de-rotated with the
+    given K, which an approximate K leaves inflated by the rotation it failed to remove, while
+    the rotation-only residual is in pixels and does not trust K.
 
     Where the rule sets still_rotation_deg and still_parallax_px, a reading whose parallax is
     under both the split and still_parallax_px in the image, with a rotation under
@@ -531,7 +532,7 @@ def _quadrant(he: np.ndarray, par: np.ndarray, p: Params,
     low = par < p["parallax_split_deg"]
     if rot_px is not None and "rot_fit_px" in p:
         with np.errstate(invalid="ignore"):
-            low = low | (rot_px <= p["rot_fit_px"])
+            low = low | rotation_explains(rot_px, noise, p)
             if "rot_fit_focal_max" in p:
                 # fits at the edge of the focal range (infinite, _bracketed_rotation_fit): the
                 # views differ by a pure image shift, a plane sliding past, so a low angle is
@@ -544,11 +545,32 @@ def _quadrant(he: np.ndarray, par: np.ndarray, p: Params,
     if rot is not None and par_px is not None:
         q[ok & standing_still(par, par_px, rot, p)] = 3
     if turn_px is not None and rot_px is not None:
-        q[ok & turned_only(rot_px, turn_px, p)] = 3
+        q[ok & turned_only(rot_px, turn_px, p, noise)] = 3
     return q
 
 
-def turned_only(rot_px: np.ndarray, turn_px: np.ndarray, p: Params) -> np.ndarray:
+def rotation_explains(rot_px: np.ndarray, noise: np.ndarray | None, p: Params) -> np.ndarray:
+    """Where the rotation-only model explains the correspondences (rules with rot_fit_px):
+    its median residual is within rot_fit_px and, where the rule sets rot_fit_noise_ratio,
+    within that multiple of E's own median residual over the same correspondences (``noise``,
+    rot_only_px / epi_residual_px; NaN reads as within, as in tables without the column).
+
+    The pixel line assumes a localisation noise of 1 px. E's Sampson residual measures the
+    noise these correspondences actually have: a correct E leaves |N(0, sigma^2)|, median
+    0.674 sigma, and a rotation that is the whole motion leaves a 2-D transfer error with noise
+    in both images, median 1.665 sigma, 2.47 times E's. A translation adds depth-dependent
+    parallax that E absorbs and no rotation does, so the ratio grows with the translation
+    whatever the camera's noise, resolution or scene.
+    """
+    with np.errstate(invalid="ignore"):
+        fits = rot_px <= p["rot_fit_px"]
+        if noise is not None and "rot_fit_noise_ratio" in p:
+            fits = fits & ~(noise > p["rot_fit_noise_ratio"])
+    return np.asarray(fits)
+
+
+def turned_only(rot_px: np.ndarray, turn_px: np.ndarray, p: Params,
+                noise: np.ndarray | None = None) -> np.ndarray:
     """A turn that a rotation-only model explains: pure rotation whatever H/E (rules with
     rot_fit_px and rot_fit_turn_px; both read over the interval's upper half by parallax).
 
@@ -564,7 +586,7 @@ def turned_only(rot_px: np.ndarray, turn_px: np.ndarray, p: Params) -> np.ndarra
     if "rot_fit_px" not in p or "rot_fit_turn_px" not in p:
         return np.zeros(len(rot_px), dtype=bool)
     with np.errstate(invalid="ignore"):
-        return (rot_px <= p["rot_fit_px"]) & (turn_px >= p["rot_fit_turn_px"])
+        return rotation_explains(rot_px, noise, p) & (turn_px >= p["rot_fit_turn_px"])
 
 
 def standing_still(par: np.ndarray, par_px: np.ndarray, rot: np.ndarray, p: Params
@@ -658,6 +680,8 @@ def _keyframe_read(df: pd.DataFrame, p: Params) -> pd.DataFrame:
     he = np.where(starved_geometry(df, p), np.nan, he)
     par_px, rot = col(df, "parallax_med_px"), col(df, "rot_deg")
     rot_px = _bracketed_rotation_fit(df, p)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        noise = rot_px / col(df, "epi_residual_px")
     ref = col(df, "ref_frame")
     with np.errstate(invalid="ignore", divide="ignore"):
         # the frontend's parallax_med_px is f tan(parallax_med_deg): the same focal turns the
@@ -666,18 +690,22 @@ def _keyframe_read(df: pd.DataFrame, p: Params) -> pd.DataFrame:
         turn_px = focal * np.tan(np.radians(np.minimum(rot, 89.0)))
     out = pd.DataFrame({"kf_h_over_e": he, "kf_parallax_med_deg": par,
                         "kf_parallax_med_px": par_px, "kf_rot_deg": rot,
-                        "kf_rot_only_px": rot_px, "kf_turn_px": turn_px,
+                        "kf_rot_only_px": rot_px, "kf_rot_noise_ratio": noise,
+                        "kf_turn_px": turn_px,
                         "kf_intervals": np.where(ref >= 0, 1.0, np.nan)})
     valid = ~np.isnan(he) & ~np.isnan(par) & (ref >= 0)
     if p.get("read_at", "frame") != "keyframe" or not valid.any():
         return out
     pos = np.flatnonzero(valid)
     rows = pd.DataFrame({"ref": ref[pos], "par": par[pos], "he": he[pos], "px": par_px[pos],
-                         "rot": rot[pos], "rpx": rot_px[pos], "turn": turn_px[pos]})
+                         "rot": rot[pos], "rpx": rot_px[pos], "noise": noise[pos],
+                         "turn": turn_px[pos]})
     read = _upper_half_read(rows, "par")
     # the rotation-only residual over the same higher-parallax rows (NaN-safe median)
     upper = rows[rows["par"] >= rows.groupby("ref")["par"].transform("median")]
     out.loc[pos, "kf_rot_only_px"] = upper.groupby("ref")["rpx"].median().reindex(
+        ref[pos]).to_numpy()
+    out.loc[pos, "kf_rot_noise_ratio"] = upper.groupby("ref")["noise"].median().reindex(
         ref[pos]).to_numpy()
     out.loc[pos, "kf_turn_px"] = upper.groupby("ref")["turn"].median().reindex(
         ref[pos]).to_numpy()
@@ -719,6 +747,7 @@ def _two_interval_read(df: pd.DataFrame, out: pd.DataFrame, pos: np.ndarray, ref
     out.loc[at, "kf_intervals"] = 2.0
     # the rotation-only residual was read over one interval: it does not describe the two
     out.loc[at, "kf_rot_only_px"] = np.nan
+    out.loc[at, "kf_rot_noise_ratio"] = np.nan
 
 
 # H/E separates a plane from 3D structure only when points off the plane move off the
@@ -734,7 +763,8 @@ def _wanted_quadrant(df: pd.DataFrame, p: Params) -> tuple[pd.DataFrame, np.ndar
     with np.errstate(invalid="ignore"):
         q = _quadrant(read["kf_h_over_e"].to_numpy(), read["kf_parallax_med_deg"].to_numpy(), p,
                       read["kf_rot_only_px"].to_numpy(), read["kf_rot_deg"].to_numpy(),
-                      read["kf_parallax_med_px"].to_numpy(), read["kf_turn_px"].to_numpy())
+                      read["kf_parallax_med_px"].to_numpy(), read["kf_turn_px"].to_numpy(),
+                      read["kf_rot_noise_ratio"].to_numpy())
     return read, q == (3 if p["want"] == "pure_rotation" else 2)
 
 
@@ -818,16 +848,18 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                    "parallax)")
         he, par = kf_he, kf_par
     rpx = _v(row, "kf_rot_only_px")
+    noise = _v(row, "kf_rot_noise_ratio")
     rot = _v(row, "kf_rot_deg")
     rot = _v(row, "rot_deg") if np.isnan(rot) else rot
     px = _v(row, "kf_parallax_med_px")
     px = _v(row, "parallax_med_px") if np.isnan(px) else px
     with np.errstate(invalid="ignore"):
         q = int(_quadrant(np.array([he]), np.array([par]), p, np.array([rpx]),
-                          np.array([rot]), np.array([px]), np.array([_v(row, "kf_turn_px")]))[0])
+                          np.array([rot]), np.array([px]), np.array([_v(row, "kf_turn_px")]),
+                          np.array([noise]))[0])
         still = bool(standing_still(np.array([par]), np.array([px]), np.array([rot]), p)[0])
         turn = _v(row, "kf_turn_px")
-        turned = bool(turned_only(np.array([rpx]), np.array([turn]), p)[0])
+        turned = bool(turned_only(np.array([rpx]), np.array([turn]), p, np.array([noise]))[0])
     out += [f"degenerate > {p['he_degenerate']:g} (general 3D < 0.5); parallax split at "
             f"{p['parallax_split_deg']:g} deg (rotation < 0.1, plane 2-3)"]
     raw_rpx, raw_scale = _v(row, "rot_only_px"), _v(row, "rot_focal_scale")
@@ -841,13 +873,22 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                    "focal range searched, so not read as a rotation: a camera sliding sideways "
                    "past a flat surface fits a rotation better the longer the focal")
     if "rot_fit_px" in p and np.isfinite(rpx):
-        fits = rpx <= p["rot_fit_px"]
+        within = rpx <= p["rot_fit_px"]
+        fits = bool(rotation_explains(np.array([rpx]), np.array([noise]), p)[0])
         scale = _v(row, "rot_focal_scale")
+        line = p.get("rot_fit_noise_ratio")
+        relative = ("" if line is None or np.isnan(noise) else
+                    f"; relative: {noise:.2g}x E's own residual over the same points "
+                    f"({'<=' if noise <= line else '>'} {line:g}x; a rotation alone leaves "
+                    "about 2.5x)")
         out.append(f"rotation-only model (focal free 0.5-2x): median residual {rpx:.2g} px "
-                   f"{'<=' if fits else '>'} {p['rot_fit_px']:g} px"
+                   f"{'<=' if within else '>'} {p['rot_fit_px']:g} px"
                    + (f" (best at {scale:.2g}x the given focal)" if not np.isnan(scale) else "")
+                   + relative
                    + (": the views differ by a rotation only, whatever the accuracy of K"
-                      if fits else ": a translation moved the points"))
+                      if fits else ": a translation moved the points beyond what the "
+                      "localisation noise explains" if within else
+                      ": a translation moved the points"))
     if q == 3 and (still or turned) and not he > p["he_degenerate"]:
         out.append("pure-rotation reading from the motion alone (H/E set aside, below): do not "
                    "estimate t, do not triangulate")
@@ -1137,13 +1178,14 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
           "rotation, a planar scene, a nearly stationary camera and healthy motion",
           "frame", "camera", ("h_over_e", "parallax_med_deg", "ref_frame", "entropy_norm",
                               "entropy_inliers_norm", "entropy_inliers_shared_norm",
-                              "parallax_med_px", "rot_deg", "rot_only_px",
+                              "parallax_med_px", "rot_deg", "rot_only_px", "epi_residual_px",
                               "ransac_iters_required", "ransac_iters_run"),
           {"want": "choice:pure_rotation|planar_degeneracy", "he_degenerate": _NUM,
            "parallax_split_deg": _NUM, "read_at": "choice:keyframe|frame",
            "min_entropy": _NUM, "min_parallax_px": _NUM, "still_rotation_deg": _NUM,
            "still_parallax_px": _NUM, "rot_fit_px": _NUM, "rot_fit_turn_px": _NUM,
-           "rot_fit_focal_min": _NUM, "rot_fit_focal_max": _NUM, "max_starvation": _NUM},
+           "rot_fit_focal_min": _NUM, "rot_fit_focal_max": _NUM, "rot_fit_noise_ratio": _NUM,
+           "max_starvation": _NUM},
           {"h_over_e": "max", "parallax_med_deg": "min"},
           {"he_degenerate": "h_over_e", "parallax_split_deg": "parallax_med_deg",
            "min_entropy": "entropy_norm", "min_parallax_px": "parallax_med_px",
@@ -1153,7 +1195,8 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
           frame=_he_parallax, explain=_he_parallax_explain, context=_keyframe_read,
           optional=frozenset({"min_entropy", "min_parallax_px", "still_rotation_deg",
                               "still_parallax_px", "rot_fit_px", "rot_fit_turn_px",
-                              "rot_fit_focal_min", "rot_fit_focal_max", "max_starvation"}),
+                              "rot_fit_focal_min", "rot_fit_focal_max", "rot_fit_noise_ratio",
+                              "max_starvation"}),
           unread=_he_parallax_unread),
     Check("clustering", "low keypoint entropy with enough features, confirmed by the "
           "condition number of the pose information matrix",
