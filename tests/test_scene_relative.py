@@ -344,3 +344,23 @@ def test_a_rotation_fit_counts_only_within_a_multiple_of_es_own_residual(ruleset
     if rel:
         assert f"{1.5 / epi:.2g}x" in rel[0]
         assert ("beyond what the localisation noise explains" in rel[0]) == (not want)
+
+
+@pytest.mark.parametrize(("parallax_deg", "parallax_px", "rot_deg", "want"), [
+    (0.01, 0.1, 0.01, ["pure_rotation"]),  # still: read on the motion, whatever the spread
+    (0.2, 2.0, 2.0, []),                   # a turn read by H/E: not on clustered inliers
+])
+def test_standing_still_is_read_on_clustered_features_and_h_over_e_is_not(
+        ruleset, parallax_deg, parallax_px, rot_deg, want) -> None:
+    """A tripod shooting a street at night keeps only its lamps: 104-181 inliers whose spread
+    reads 0.51-0.58, under the 0.6 line below which any scene fits a homography. That line
+    guards H/E; standing still is decided on the motion alone, and a view that did not move
+    has no baseline however its features lie."""
+    row = {"h_over_e": 0.97, "parallax_med_deg": parallax_deg, "parallax_med_px": parallax_px,
+           "rot_deg": rot_deg, "entropy_inliers_norm": 0.55}
+    res = evaluate(frames(20, {range(5, 15): row}), ruleset)
+    assert hits(res, "pure_rotation")[10] == bool(want)
+    assert not hits(res, "planar_degeneracy").any()
+    lines = next(e for e in explain_row(res, 10) if e.rule.id == "FD-ROT-001").check_lines
+    assert any(ln.startswith("not read: entropy") for ln in lines) != bool(want)
+    assert any("standing still is read on the motion alone" in ln for ln in lines) == bool(want)

@@ -773,8 +773,13 @@ def _he_parallax(df: pd.DataFrame, p: Params) -> np.ndarray:
     with np.errstate(invalid="ignore"):
         if "min_entropy" in p:
             # features crowded into a small cone are locally planar: a homography fits them
-            # whatever the scene, so H/E only reads the scene when the features are spread
-            hit &= quadrant_entropy(df) >= p["min_entropy"]
+            # whatever the scene, so H/E only reads the scene when the features are spread.
+            # Standing still is read on the motion alone, not on H/E: a view that did not move
+            # has no baseline however its features lie (a street at night, only its lamps)
+            still = standing_still(read["kf_parallax_med_deg"].to_numpy(),
+                                   read["kf_parallax_med_px"].to_numpy(),
+                                   read["kf_rot_deg"].to_numpy(), p)
+            hit &= (quadrant_entropy(df) >= p["min_entropy"]) | still
         if "min_parallax_px" in p:
             # below it a 3D scene fits H nearly as well as E: the reading cannot tell (a table
             # without parallax_med_px is read as before)
@@ -904,7 +909,12 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                                  ent_sh))
     where = ("inliers over the view shared with the reference keyframe"
              if not np.isnan(ent_sh) else "inliers")
-    if "min_entropy" in p and not ent >= p["min_entropy"]:
+    if "min_entropy" in p and not ent >= p["min_entropy"] and q == 3 and still:
+        out.append(f"entropy (keypoints or {where}, the lower) {_fmt(ent)} < "
+                   f"{p['min_entropy']:g}: H/E is not read on clustered features, but standing "
+                   "still is read on the motion alone, and a view that did not move has no "
+                   "baseline however its features lie")
+    elif "min_entropy" in p and not ent >= p["min_entropy"]:
         out.append(f"not read: entropy (keypoints or {where}, the lower) {_fmt(ent)} < "
                    f"{p['min_entropy']:g}, clustered features fit a homography whatever the "
                    "scene (feature_clustering look-alike)")
