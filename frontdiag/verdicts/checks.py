@@ -672,7 +672,8 @@ def _keyframe_read(df: pd.DataFrame, p: Params) -> pd.DataFrame:
     reference; the median keeps one noisy frame from deciding the interval. The rotation read is
     the largest the reference saw (a pan grows from zero at each keyframe change); the turn in
     pixels (``kf_turn_px``, f tan(rotation)) is the median over the same upper half as the
-    rotation-only residual it is read with. Rows without a `ref_frame` (or with
+    rotation-only residual it is read with, and so is that residual in units of E's own
+    (``kf_rot_noise_ratio``, rot_only_px / epi_residual_px row by row). Rows without a `ref_frame` (or with
     read_at = "frame") are read on their own.
     """
     he, par = col(df, "h_over_e"), col(df, "parallax_med_deg")
@@ -680,10 +681,10 @@ def _keyframe_read(df: pd.DataFrame, p: Params) -> pd.DataFrame:
     he = np.where(starved_geometry(df, p), np.nan, he)
     par_px, rot = col(df, "parallax_med_px"), col(df, "rot_deg")
     rot_px = _bracketed_rotation_fit(df, p)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        noise = rot_px / col(df, "epi_residual_px")
     ref = col(df, "ref_frame")
     with np.errstate(invalid="ignore", divide="ignore"):
+        # the rotation fit's residual in units of E's own over the same correspondences
+        noise = rot_px / col(df, "epi_residual_px")
         # the frontend's parallax_med_px is f tan(parallax_med_deg): the same focal turns the
         # rotation into how far it moves a point at the image centre
         focal = np.where(par > 0, par_px / np.tan(np.radians(par)), np.nan)
