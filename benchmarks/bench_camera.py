@@ -33,7 +33,7 @@ import numpy as np
 
 from frontdiag.camera import synthetic
 from frontdiag.camera.frontend import CameraFrontend, CameraParams
-from frontdiag.camera.geometry import rotation_only_fit
+from frontdiag.camera.geometry import rotation_only_fit, sampson_px
 from frontdiag.camera.matching import match
 from frontdiag.records import CameraFrame, Intrinsics
 
@@ -112,6 +112,25 @@ def rotation_fit_cost(K: np.ndarray, repeat: int) -> dict[str, float]:
     return out
 
 
+def epi_residual_cost(K: np.ndarray, repeat: int) -> dict[str, float]:
+    """ms per call of ``epi_residual_px`` (the median Sampson distance of E's inliers, taken on
+    every row with an E) at 100-1000 inliers (seeded points, 200 calls per repeat)."""
+    rng = np.random.default_rng(0)
+    w, h = 2 * K[0, 2], 2 * K[1, 2]
+    E = np.array([[0.0, -1.0, 0.1], [1.0, 0.0, -0.2], [-0.1, 0.2, 0.0]])
+    out = {}
+    for n in (100, 300, 1000):
+        a = rng.uniform((0, 0), (w, h), (n, 2))
+        b = a + rng.normal(0.0, 1.0, (n, 2))
+
+        def calls(a: np.ndarray = a, b: np.ndarray = b) -> None:
+            for _ in range(200):
+                np.median(sampson_px(a, b, E, K))
+
+        out[f"{n} inliers"] = best_of(repeat, calls) / 200 * 1e3
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=60)
@@ -166,6 +185,10 @@ def main() -> None:
           "quadrant), ms per call:")
     for name, ms in rotation_fit_cost(K, max(args.repeat, 5)).items():
         print(f"    {ms:7.2f}  {name}")
+    print("  E's residual (epi_residual_px, every row with an E; in the geometry stage), "
+          "ms per call:")
+    for name, ms in epi_residual_cost(K, max(args.repeat, 5)).items():
+        print(f"    {ms:7.3f}  {name}")
 
     _, des_a = orb.detectAndCompute(frames[0], None)
     _, des_b = orb.detectAndCompute(frames[1], None)
