@@ -511,13 +511,13 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
 def _quadrant(he: np.ndarray, par: np.ndarray, p: Params,
               rot_px: np.ndarray | None = None, rot: np.ndarray | None = None,
               par_px: np.ndarray | None = None, turn_px: np.ndarray | None = None,
-              noise: np.ndarray | None = None) -> np.ndarray:
+              noise_ratio: np.ndarray | None = None) -> np.ndarray:
     """0 healthy, 1 nearly stationary, 2 planar, 3 pure rotation, -1 not computable.
 
     Parallax is low below parallax_split_deg, or, where the rule sets rot_fit_px, where a
     rotation-only model (the focal free within a factor of 2) explains the correspondences
     within rot_fit_px (and, where the rule sets rot_fit_noise_ratio, within that multiple of
-    E's own residual, ``noise``: :func:`rotation_explains`): the angle is de-rotated with the
+    E's own residual, ``noise_ratio``: :func:`rotation_explains`): the angle is de-rotated with the
     given K, which an approximate K leaves inflated by the rotation it failed to remove, while
     the rotation-only residual is in pixels and does not trust K.
 
@@ -532,7 +532,7 @@ def _quadrant(he: np.ndarray, par: np.ndarray, p: Params,
     low = par < p["parallax_split_deg"]
     if rot_px is not None and "rot_fit_px" in p:
         with np.errstate(invalid="ignore"):
-            low = low | rotation_explains(rot_px, noise, p)
+            low = low | rotation_explains(rot_px, noise_ratio, p)
             if "rot_fit_focal_max" in p:
                 # fits at the edge of the focal range (infinite, _bracketed_rotation_fit): the
                 # views differ by a pure image shift, a plane sliding past, so a low angle is
@@ -545,14 +545,14 @@ def _quadrant(he: np.ndarray, par: np.ndarray, p: Params,
     if rot is not None and par_px is not None:
         q[ok & standing_still(par, par_px, rot, p)] = 3
     if turn_px is not None and rot_px is not None:
-        q[ok & turned_only(rot_px, turn_px, p, noise)] = 3
+        q[ok & turned_only(rot_px, turn_px, p, noise_ratio)] = 3
     return q
 
 
-def rotation_explains(rot_px: np.ndarray, noise: np.ndarray | None, p: Params) -> np.ndarray:
+def rotation_explains(rot_px: np.ndarray, noise_ratio: np.ndarray | None, p: Params) -> np.ndarray:
     """Where the rotation-only model explains the correspondences (rules with rot_fit_px):
     its median residual is within rot_fit_px and, where the rule sets rot_fit_noise_ratio,
-    within that multiple of E's own median residual over the same correspondences (``noise``,
+    within that multiple of E's own median residual over the same correspondences (``noise_ratio``,
     rot_only_px / epi_residual_px; NaN reads as within, as in tables without the column).
 
     The pixel line assumes a localisation noise of 1 px. E's Sampson residual measures the
@@ -564,13 +564,13 @@ def rotation_explains(rot_px: np.ndarray, noise: np.ndarray | None, p: Params) -
     """
     with np.errstate(invalid="ignore"):
         fits = rot_px <= p["rot_fit_px"]
-        if noise is not None and "rot_fit_noise_ratio" in p:
-            fits = fits & ~(noise > p["rot_fit_noise_ratio"])
+        if noise_ratio is not None and "rot_fit_noise_ratio" in p:
+            fits = fits & ~(noise_ratio > p["rot_fit_noise_ratio"])
     return np.asarray(fits)
 
 
 def turned_only(rot_px: np.ndarray, turn_px: np.ndarray, p: Params,
-                noise: np.ndarray | None = None) -> np.ndarray:
+                noise_ratio: np.ndarray | None = None) -> np.ndarray:
     """A turn that a rotation-only model explains: pure rotation whatever H/E (rules with
     rot_fit_px and rot_fit_turn_px; both read over the interval's upper half by parallax).
 
@@ -586,7 +586,7 @@ def turned_only(rot_px: np.ndarray, turn_px: np.ndarray, p: Params,
     if "rot_fit_px" not in p or "rot_fit_turn_px" not in p:
         return np.zeros(len(rot_px), dtype=bool)
     with np.errstate(invalid="ignore"):
-        return rotation_explains(rot_px, noise, p) & (turn_px >= p["rot_fit_turn_px"])
+        return rotation_explains(rot_px, noise_ratio, p) & (turn_px >= p["rot_fit_turn_px"])
 
 
 def standing_still(par: np.ndarray, par_px: np.ndarray, rot: np.ndarray, p: Params
@@ -684,14 +684,14 @@ def _keyframe_read(df: pd.DataFrame, p: Params) -> pd.DataFrame:
     ref = col(df, "ref_frame")
     with np.errstate(invalid="ignore", divide="ignore"):
         # the rotation fit's residual in units of E's own over the same correspondences
-        noise = rot_px / col(df, "epi_residual_px")
+        noise_ratio = rot_px / col(df, "epi_residual_px")
         # the frontend's parallax_med_px is f tan(parallax_med_deg): the same focal turns the
         # rotation into how far it moves a point at the image centre
         focal = np.where(par > 0, par_px / np.tan(np.radians(par)), np.nan)
         turn_px = focal * np.tan(np.radians(np.minimum(rot, 89.0)))
     out = pd.DataFrame({"kf_h_over_e": he, "kf_parallax_med_deg": par,
                         "kf_parallax_med_px": par_px, "kf_rot_deg": rot,
-                        "kf_rot_only_px": rot_px, "kf_rot_noise_ratio": noise,
+                        "kf_rot_only_px": rot_px, "kf_rot_noise_ratio": noise_ratio,
                         "kf_turn_px": turn_px,
                         "kf_intervals": np.where(ref >= 0, 1.0, np.nan)})
     valid = ~np.isnan(he) & ~np.isnan(par) & (ref >= 0)
@@ -699,14 +699,14 @@ def _keyframe_read(df: pd.DataFrame, p: Params) -> pd.DataFrame:
         return out
     pos = np.flatnonzero(valid)
     rows = pd.DataFrame({"ref": ref[pos], "par": par[pos], "he": he[pos], "px": par_px[pos],
-                         "rot": rot[pos], "rpx": rot_px[pos], "noise": noise[pos],
+                         "rot": rot[pos], "rpx": rot_px[pos], "noise_ratio": noise_ratio[pos],
                          "turn": turn_px[pos]})
     read = _upper_half_read(rows, "par")
     # the rotation-only residual over the same higher-parallax rows (NaN-safe median)
     upper = rows[rows["par"] >= rows.groupby("ref")["par"].transform("median")]
     out.loc[pos, "kf_rot_only_px"] = upper.groupby("ref")["rpx"].median().reindex(
         ref[pos]).to_numpy()
-    out.loc[pos, "kf_rot_noise_ratio"] = upper.groupby("ref")["noise"].median().reindex(
+    out.loc[pos, "kf_rot_noise_ratio"] = upper.groupby("ref")["noise_ratio"].median().reindex(
         ref[pos]).to_numpy()
     out.loc[pos, "kf_turn_px"] = upper.groupby("ref")["turn"].median().reindex(
         ref[pos]).to_numpy()
@@ -854,7 +854,7 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                    "parallax)")
         he, par = kf_he, kf_par
     rpx = _v(row, "kf_rot_only_px")
-    noise = _v(row, "kf_rot_noise_ratio")
+    noise_ratio = _v(row, "kf_rot_noise_ratio")
     rot = _v(row, "kf_rot_deg")
     rot = _v(row, "rot_deg") if np.isnan(rot) else rot
     px = _v(row, "kf_parallax_med_px")
@@ -862,10 +862,10 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     with np.errstate(invalid="ignore"):
         q = int(_quadrant(np.array([he]), np.array([par]), p, np.array([rpx]),
                           np.array([rot]), np.array([px]), np.array([_v(row, "kf_turn_px")]),
-                          np.array([noise]))[0])
+                          np.array([noise_ratio]))[0])
         still = bool(standing_still(np.array([par]), np.array([px]), np.array([rot]), p)[0])
         turn = _v(row, "kf_turn_px")
-        turned = bool(turned_only(np.array([rpx]), np.array([turn]), p, np.array([noise]))[0])
+        turned = bool(turned_only(np.array([rpx]), np.array([turn]), p, np.array([noise_ratio]))[0])
     out += [f"degenerate > {p['he_degenerate']:g} (general 3D < 0.5); parallax split at "
             f"{p['parallax_split_deg']:g} deg (rotation < 0.1, plane 2-3)"]
     raw_rpx, raw_scale = _v(row, "rot_only_px"), _v(row, "rot_focal_scale")
@@ -880,12 +880,12 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                    "past a flat surface fits a rotation better the longer the focal")
     if "rot_fit_px" in p and np.isfinite(rpx):
         within = rpx <= p["rot_fit_px"]
-        fits = bool(rotation_explains(np.array([rpx]), np.array([noise]), p)[0])
+        fits = bool(rotation_explains(np.array([rpx]), np.array([noise_ratio]), p)[0])
         scale = _v(row, "rot_focal_scale")
         line = p.get("rot_fit_noise_ratio")
-        relative = ("" if line is None or np.isnan(noise) else
-                    f"; relative: {noise:.2g}x E's own residual over the same points "
-                    f"({'<=' if noise <= line else '>'} {line:g}x; a rotation alone leaves "
+        relative = ("" if line is None or np.isnan(noise_ratio) else
+                    f"; relative: {noise_ratio:.2g}x E's own residual over the same points "
+                    f"({'<=' if noise_ratio <= line else '>'} {line:g}x; a rotation alone leaves "
                     "about 2.5x)")
         out.append(f"rotation-only model (focal free 0.5-2x): median residual {rpx:.2g} px "
                    f"{'<=' if within else '>'} {p['rot_fit_px']:g} px"
