@@ -66,7 +66,9 @@ def test_explain_reports_not_yet_persistent_hits(tmp_path, capsys) -> None:
     frames(30, {12: {"h_over_e": 0.98, "parallax_med_deg": 0.04}}).to_parquet(d / "frames.parquet")
     assert main(["explain", str(d), "--frame", "12"]) == 0
     out = capsys.readouterr().out
-    assert "holds here, not persistent" in out and "needs 3 of 5" in out
+    # the window spans at least 0.33 s: at the table's 30 Hz, 6 of 10 rows
+    assert "holds here, not persistent" in out and "needs 6 of 10 consecutive rows" in out
+    assert "at least 0.33 s" in out
 
 
 def test_explain_uses_the_rules_snapshot_of_the_run(result_dir, tmp_path, capsys) -> None:

@@ -87,6 +87,44 @@ def test_persistence_shorter_group_than_window() -> None:
     assert persist(b(1, 1, 0, 0, 0), 3, 5).tolist() == [False] * 5
 
 
+def test_persistence_window_spans_a_time_not_a_number_of_rows(ruleset) -> None:
+    rot = next(r for r in ruleset.rules if r.id == "FD-ROT-001")
+    p = rot.persistence
+    assert p is not None and p.span_s == pytest.approx(0.33)
+    # 5 rows at the 15 Hz the window was set at and below; as many rows as 0.33 s holds above
+    assert p.window(15.0) == (3, 5) and p.window(10.0) == (3, 5) and p.window(1.0) == (3, 5)
+    assert p.window(30.0) == (6, 10)
+    assert p.window(200.0) == (40, 66)  # ceil(3 * 66 / 5)
+    assert p.window(float("nan")) == (3, 5)  # no stamps: the rows as written
+
+    # the same bursts of "rotation" (0.13 s and 0.2 s) and the same 1 s pan, at 15 and 30 Hz
+    def run(rate: float) -> list[int]:
+        short = range(round(1.0 * rate), round(1.0 * rate) + round(0.4 * rate / 3))
+        burst = range(round(2.0 * rate), round(2.2 * rate))
+        pan = range(round(3.0 * rate), round(4.0 * rate))
+        lows = {"h_over_e": 0.98, "parallax_med_deg": 0.04}
+        t = frames(round(5 * rate), {short: lows, burst: lows, pan: lows}, rate_hz=rate)
+        hit = evaluate(t, ruleset).hits["FD-ROT-001"]
+        return [len(short), int(hit[short].sum()), len(burst), int(hit[burst].sum()),
+                int(hit[pan].sum()) == len(pan)]
+
+    # 0.13 s is 2 rows of 5 at 15 Hz and 4 of 10 at 30 Hz: a blip at both rates (a 5-row
+    # window kept those 4 rows at 30 Hz); 0.2 s is 3 of 5 and 6 of 10: kept at both
+    assert run(15.0) == [2, 0, 3, 3, True]
+    assert run(30.0) == [4, 0, 6, 6, True]
+    # the 4 rows at 30 Hz, which a window of 5 rows alone keeps
+    assert persist(np.isin(np.arange(150), range(30, 34)), 3, 5).sum() == 4
+
+
+def test_frame_rate_from_the_stamps() -> None:
+    from frontdiag.verdicts.engine import frame_rate
+    assert frame_rate(frames(20, rate_hz=30.0)) == pytest.approx(30.0, rel=1e-5)
+    shuffled = frames(20, rate_hz=12.5).sample(frac=1.0, random_state=1)
+    assert frame_rate(shuffled) == pytest.approx(12.5, rel=1e-5)
+    one = frames(1)
+    assert np.isnan(frame_rate(one))
+
+
 # --- named checks on the reference rows ----------------------------------------------------------
 
 def test_healthy_table_has_no_findings(ruleset) -> None:
@@ -631,7 +669,7 @@ def test_two_clean_rows_split_episodes(ruleset) -> None:
 
 
 def test_episodes_are_per_topic_and_worst_first(ruleset) -> None:
-    a = frames(40, {range(5, 10): {"ratio_reject_rate": 0.9}}, topic="/cam_left")
+    a = frames(40, {range(5, 10): {"ratio_reject_rate": 0.9}}, topic="/cam_left", rate_hz=15)
     b = frames(40, {range(20, 23): {"n_keypoints": 90}, range(30, 38): {"n_keypoints": 90}},
                topic="/cam_right")
     res = evaluate(pd.concat([a, b], ignore_index=True), ruleset)

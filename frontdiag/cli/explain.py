@@ -171,6 +171,7 @@ def build_explanation(result_dir: Path, frame: int | None, t: float | None,
     from frontdiag.errors import ConfigError
     from frontdiag.metrics import METRICS
     from frontdiag.verdicts import CHECKS, evaluate
+    from frontdiag.verdicts.engine import frame_rate
     from frontdiag.verdicts.explain import explain_row
 
     if not result_dir.exists():
@@ -215,7 +216,7 @@ def build_explanation(result_dir: Path, frame: int | None, t: float | None,
                         f"{r.id} {name}={r.params[name].value}")
         check = list(e.check_lines)
         if r.persistence and e.raw and not e.fired:
-            check.append(f"needs {r.persistence.k} of {r.persistence.n} consecutive rows")
+            check.append(f"needs {r.persistence.describe(frame_rate(same))}")
         if r.sensor == "lidar" and str(row.get("lidar_weak_dir", "")) not in ("", "nan", "None"):
             check.append(f"weakest direction: {row['lidar_weak_dir']} "
                          f"(axis {row.get('lidar_weak_axis', '')})")

@@ -127,7 +127,7 @@ def register(app: typer.Typer) -> None:
                 con.print(f"  {name} = {param.value}{on}  [dim]{escape(param.reason)}[/]")
         if rule.persistence:
             p = rule.persistence
-            con.print(f"[bold]persistence[/] {p.k} of {p.n} consecutive rows  "
+            con.print(f"[bold]persistence[/] {p.describe()}  "
                       f"[dim]{escape(p.reason)}[/]")
         return EXIT_OK
 

@@ -93,6 +93,15 @@ def persist(raw: np.ndarray, k: int, n: int) -> np.ndarray:
     return raw & covered
 
 
+def frame_rate(rows: pd.DataFrame) -> float:
+    """Frames per second of one topic's rows: 1 / the median positive step between sorted
+    stamps; NaN without two distinct stamps."""
+    t = col(rows, "t_ns")
+    step = np.diff(np.sort(t[~np.isnan(t)]))
+    step = step[step > 0]
+    return 1e9 / float(np.median(step)) if step.size else float("nan")
+
+
 def rule_mask(rule: Rule, rows: pd.DataFrame) -> np.ndarray:
     """Raw hits of one frame rule over the rows of one topic (time order), before persistence."""
     masks = [apply(c.op, col(rows, c.metric), c.value, use_abs=c.abs) for c in rule.when]
@@ -148,7 +157,7 @@ def _frame_hits(table: pd.DataFrame, rules: tuple[Rule, ...]) -> dict[str, np.nd
             rows = table.iloc[pos]
             raw = rule_mask(rule, rows)
             if rule.persistence is not None:
-                raw = persist(raw, rule.persistence.k, rule.persistence.n)
+                raw = persist(raw, *rule.persistence.window(frame_rate(rows)))
             hits[rule.id][pos] = raw
     return hits
 

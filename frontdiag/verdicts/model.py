@@ -7,6 +7,7 @@ threshold carries a one-line reason. Nothing here is executed; the engine interp
 
 from __future__ import annotations
 
+import math
 from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -48,10 +49,17 @@ class Param(_Strict):
 
 
 class Persistence(_Strict):
-    """Keep a hit only where at least k of some n consecutive rows of its topic hit."""
+    """Keep a hit only where at least k of some n consecutive rows of its topic hit.
+
+    With ``span_s``, the window also spans at least that many seconds of the topic's own frame
+    rate: on a faster stream n grows to ``round(span_s * rate)`` rows and k in proportion
+    (``window``), so a window means the same time at 10 Hz, 30 Hz or 200 Hz.
+    """
 
     k: int = Field(ge=1)
     n: int = Field(ge=1)
+    span_s: float | None = Field(default=None, ge=0)
+    """0 or absent: the window is n rows at any frame rate."""
     reason: str = Field(min_length=1)
 
     @model_validator(mode="after")
@@ -59,6 +67,19 @@ class Persistence(_Strict):
         if self.k > self.n:
             raise ValueError(f"persistence k={self.k} exceeds n={self.n}")
         return self
+
+    def window(self, rate_hz: float) -> tuple[int, int]:
+        """``(k, n)`` in rows for a stream at ``rate_hz`` (NaN or 0: the rows as written)."""
+        if not self.span_s or not math.isfinite(rate_hz) or rate_hz <= 0:
+            return self.k, self.n
+        n = max(self.n, round(self.span_s * rate_hz))
+        return -(-self.k * n // self.n), n
+
+    def describe(self, rate_hz: float = float("nan")) -> str:
+        """How a user reads the window, e.g. "3 of 5 consecutive rows (at least 0.33 s)"."""
+        k, n = self.window(rate_hz)
+        span = f" (at least {self.span_s:g} s)" if self.span_s else ""
+        return f"{k} of {n} consecutive rows{span}"
 
 
 class RuleText(_Strict):
