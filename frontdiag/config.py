@@ -62,6 +62,10 @@ class CameraConfig(_Strict):
                                    description="... and on keyframe intervals whose rotation "
                                                "moves the image this much (px), whatever H/E "
                                                "(lowered to the rules' rot_fit_turn_px)")
+    rot_span_s: float = Field(default=0.33, ge=0.0, le=60.0,
+                              description="read the motion over at least this long (s) where a "
+                                          "keyframe interval is shorter and could read as "
+                                          "rotation or standing still; 0: never")
     seed: int = Field(default=0, ge=0, description="RANSAC seed")
 
     @model_validator(mode="after")

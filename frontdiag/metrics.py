@@ -145,6 +145,17 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
        "lower"),
     _M("parallax_med_deg_2kf", "deg", "camera", "parallax_med_deg against ref2_frame", "higher"),
     _M("parallax_med_px_2kf", "px", "camera", "parallax_med_px against ref2_frame", "higher"),
+    _M("span_frame", "", "camera",
+       "the frame the motion over at least rot_span_s (0.33 s) was read against, where the "
+       "keyframe interval was shorter and could read as rotation or standing still; -1 when "
+       "not read"),
+    _M("span_dt_s", "s", "camera", "time between span_frame and the interval's last frame"),
+    _M("rot_only_px_span", "px", "camera",
+       "rot_only_px over the span (the interval's last frame against span_frame): over a "
+       "third of a second a translating camera's parallax outgrows the noise that a short "
+       "keyframe interval leaves it in", "none"),
+    _M("epi_residual_px_span", "px", "camera", "epi_residual_px over the span"),
+    _M("parallax_med_deg_span", "deg", "camera", "parallax_med_deg over the span", "higher"),
     _M("t_dir_change_deg", "deg", "camera",
        "change of the recovered translation direction since the previous frame (same reference)"),
     _M("pose_info_cond", "ratio", "camera",

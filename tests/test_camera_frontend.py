@@ -431,3 +431,59 @@ def test_a_wide_turn_reads_its_inliers_over_the_view_both_frames_share() -> None
     assert shared > 0.75
     still = run([g[0], g[0]])[1]  # nothing turned: the whole view is shared
     assert still["entropy_inliers_shared_norm"] == pytest.approx(still["entropy_inliers_norm"])
+
+
+def _pan(n: int, step_deg: float) -> list[np.ndarray]:
+    return [S.render(room(), K, S.rot((0, 1, 0), step_deg * k), np.zeros(3), SIZE)
+            for k in range(n)]
+
+
+def _span_rows(grays: list[np.ndarray], **params: float) -> list[dict]:
+    fe = CameraFrontend(CameraParams(**params), Intrinsics(K=K))  # type: ignore[arg-type]
+    rows = run_completed(fe, grays)
+    # frames are kept only as far back as a later interval can read: 0.33 s at 30 Hz
+    assert len(fe._history) <= 12
+    return rows
+
+
+def test_a_short_interval_is_read_over_a_third_of_a_second() -> None:
+    # keyframes every 3 frames (0.1 s at 30 Hz), as a hand-held camera's tracked share makes
+    # them: over one interval a slow walk (8 mm a frame through a room 3-9 m deep) and a pan
+    # both read under 0.3 deg of parallax. Over 0.33 s the walk's rotation-only fit leaves
+    # about 3 px, 12x E's residual; the pan's leaves E's noise times about 2.5, as theory says
+    walk_rows = _span_rows(walk(24, step_deg=0.05, step_m=0.008), kf_max_frames=3)
+    pan_rows = _span_rows(_pan(24, 0.5), kf_max_frames=3)
+    for rows, moved in ((walk_rows, True), (pan_rows, False)):
+        read = [(i, r) for i, r in enumerate(rows) if r["span_frame"] >= 0]
+        assert len(read) >= 12
+        for i, r in read:
+            assert r["span_dt_s"] >= 0.33 - 1e-6 and r["span_frame"] < r["ref_frame"]
+            ratio = r["rot_only_px_span"] / r["epi_residual_px_span"]
+            if moved:
+                assert r["rot_only_px_span"] > 2.45 and ratio > 4, (i, r["rot_only_px_span"], ratio)
+            else:
+                assert r["rot_only_px_span"] < 1.5 and ratio < 4, (i, r["rot_only_px_span"], ratio)
+        # every row of an interval carries its reading; the first 0.33 s has nothing to read
+        assert all(r["span_frame"] == -1 for r in rows[:10])
+
+
+def test_no_span_reading_where_the_interval_is_long_or_moves_enough() -> None:
+    # a camera standing still keeps its keyframe for the default 20 frames (0.66 s): an
+    # interval of 0.33 s and more is its own span; a fast walk's intervals read parallax
+    # above 0.3 deg; and rot_span_s = 0 turns the reading off
+    rng = np.random.default_rng(7)
+    still = S.render(room(), K, np.eye(3), np.zeros(3), SIZE)
+    grays = [np.clip(still + rng.normal(0, 2.0, still.shape), 0, 255).astype(np.uint8)
+             for _ in range(45)]
+    rows = _span_rows(grays)
+    assert [i for i, r in enumerate(rows) if r["keyframe_reason"]] == [0, 20, 40]
+    assert all(r["span_frame"] == -1 for r in rows[:41])
+    # the recording ends 4 frames into the last interval: that one is short (read against
+    # frame 34, 10 frames of 33 ms before frame 44), and still
+    last = rows[41:]
+    assert all(r["span_frame"] == 34 and r["rot_only_px_span"] < 1.0 for r in last), \
+        [(r["span_frame"], r["rot_only_px_span"]) for r in last]
+    rows = _span_rows(walk(30, step_deg=0.05, step_m=0.08), kf_max_frames=3)
+    assert all(r["span_frame"] == -1 for r in rows)
+    rows = _span_rows(walk(24, step_deg=0.05, step_m=0.008), kf_max_frames=3, rot_span_s=0.0)
+    assert all(r["span_frame"] == -1 for r in rows)

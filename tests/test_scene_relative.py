@@ -364,3 +364,29 @@ def test_standing_still_is_read_on_clustered_features_and_h_over_e_is_not(
     lines = next(e for e in explain_row(res, 10) if e.rule.id == "FD-ROT-001").check_lines
     assert any(ln.startswith("not read: entropy") for ln in lines) != bool(want)
     assert any("standing still is read on the motion alone" in ln for ln in lines) == bool(want)
+
+
+@pytest.mark.parametrize(("span_px", "span_epi", "want"), [
+    (np.nan, np.nan, True),   # no span reading (an interval of 0.33 s or more): as before
+    (0.65, 0.25, True),       # a pan over 0.33 s: 2.6x E's residual, as a rotation leaves
+    (0.10, 0.02, True),       # standing still: E fits sub-pixel jitter, the ratio means nothing
+    (3.1, 0.25, False),       # a slow walk: 3.1 px, 12x E's residual over 0.33 s
+    (3.1, 0.90, True),        # 3.1 px, but only 3.4x a residual that large: noise, not motion
+])
+def test_a_short_interval_is_not_rotation_when_the_camera_translated_over_its_span(
+        ruleset, span_px, span_epi, want) -> None:
+    """A hand-held camera at 30 Hz makes keyframes 1-4 frames apart; a walk over so short an
+    interval reads like a turn (H/E 0.95, parallax 0.1 deg). Over 0.33 s the rotation-only
+    model shows the translation: beyond the homography threshold and 4x E's residual."""
+    row = {"h_over_e": 0.95, "parallax_med_deg": 0.1, "parallax_med_px": 1.0, "rot_deg": 2.0,
+           "span_frame": 0, "span_dt_s": 0.34, "rot_only_px_span": span_px,
+           "epi_residual_px_span": span_epi}
+    res = evaluate(frames(20, {range(5, 15): row}), ruleset)
+    assert hits(res, "pure_rotation")[10] == want
+    assert not hits(res, "planar_degeneracy").any()
+    lines = next(e for e in explain_row(res, 10) if e.rule.id == "FD-ROT-001").check_lines
+    span = [ln for ln in lines if ln.startswith("over 0.34 s")]
+    assert len(span) == (0 if np.isnan(span_px) else 1)
+    if span:
+        assert ("the camera translated" in span[0]) == (not want)
+        assert f"{span_px:.2g} px" in span[0]

@@ -45,6 +45,19 @@ the one RANSAC picks, and H/E falls with the mismatch share (FD-ROT-001's ``rot_
 read over the same frames). Elsewhere the
 columns stay empty, since a rotation fit cannot change a quadrant whose H/E is low or whose
 parallax is already under the split.
+
+A keyframe interval can be much shorter than a turn or a stop (at 30 Hz a hand-held camera's
+tracked share falls under 0.9 within 1-4 frames of a sweep), and over so short a baseline a
+walking camera's parallax stays within the noise a rotation-only model leaves. So where an
+interval lasted under ``rot_span_s`` (0.33 s, the time FD-ROT-001's persistence window spans)
+and could read as a turn or as standing still (a row with parallax under
+``rot_fit_parallax_deg``, or a rotation-only fit within the homography threshold), its last
+frame is also read against the newest kept frame at least ``rot_span_s`` before it, matched
+directly (``span_frame``): E, its residual, the parallax and the rotation-only fit over the
+span (``*_span`` columns, on every row of the interval). A camera that only turns or stands
+still is still explained by a rotation over the longer span; a translating one is not. Frames
+are kept for this as descriptors and points only, and only as far back as a later interval
+can read.
 """
 
 from __future__ import annotations
@@ -123,6 +136,7 @@ class CameraParams:
     rot_fit_he: float = 0.9  # rotation-only fit where H/E is above this (module docstring)
     rot_fit_parallax_deg: float = 0.3  # ... with at least this much parallax
     rot_fit_turn_px: float = 10.0  # ... and on intervals that turned this much, whatever H/E
+    rot_span_s: float = 0.33  # read the motion over at least this long (module docstring)
     seed: int = 0
 
     def as_dict(self) -> dict[str, Any]:
@@ -139,6 +153,17 @@ class _View:
     und: np.ndarray  # (N, 2) undistorted pixel coordinates
     kf_idx: np.ndarray  # (N,) index of the reference keyframe feature this one tracks, or -1
     mean: float = NAN
+    t_ns: int = 0
+
+
+@dataclass(frozen=True)
+class _Past:
+    """What the span reading needs of an earlier frame: its descriptors and points."""
+
+    index: int
+    t_ns: int
+    des: np.ndarray
+    und: np.ndarray
 
 
 @dataclass
@@ -162,6 +187,8 @@ class _Keyframe:
     parent_deg: float = NAN
     """The largest median parallax (deg) a frame of the parent's interval read against the
     parent: the first leg of this interval's two-interval readings (NaN when none was read)."""
+    row_frames: list[int] = field(default_factory=list)
+    """The frames read against this keyframe, in order (the interval's rows)."""
 
     def largest_parallax_deg(self) -> float:
         """The largest median parallax (deg) a frame of this interval read against it (NaN when
@@ -184,6 +211,8 @@ def _row_template() -> dict[str, Any]:
         "t_dir_change_deg": NAN, "pose_info_cond": NAN,
         "ref2_frame": -1, "h_over_e_2kf": NAN, "parallax_med_deg_2kf": NAN,
         "parallax_med_px_2kf": NAN,
+        "span_frame": -1, "span_dt_s": NAN, "rot_only_px_span": NAN, "epi_residual_px_span": NAN,
+        "parallax_med_deg_span": NAN,
         "mean_intensity": NAN, "d_mean_intensity": NAN, "photo_residual_med": NAN,
         "affine_gain": NAN, "affine_bias": NAN, "photo_residual_affine_med": NAN,
         "brightness_ratio": NAN, "brightness_ratio_se": NAN, "keyframe_reason": "", "ms_detect": 0.0, "ms_match": 0.0, "ms_geometry": 0.0,
@@ -209,6 +238,7 @@ class CameraFrontend:
         self._he_min_px = 2 * homography_threshold_px(params.sigma_px)
         self._two_interval_sel: np.ndarray | None = None
         self._updates: list[tuple[int, dict[str, Any]]] = []
+        self._history: list[_Past] = []  # recent frames, for the span reading
         self._grid = np.zeros((0, 0), np.int64)
         self._state: np.ndarray | None = None
         self._flow: tuple[int, np.ndarray, np.ndarray] | None = None
@@ -216,13 +246,14 @@ class CameraFrontend:
         """What the last ``process`` call computed, for drawing (see CameraAnnotation)."""
 
     def reset(self) -> None:
-        self._close_interval()
+        self._close_interval(self._prev)
         self._prev = None
         self._kf = None
+        self._history = []
 
     def finish(self) -> None:
         """The end of the frames: close the open interval (see :meth:`take_updates`)."""
-        self._close_interval()
+        self._close_interval(self._prev)
 
     def take_updates(self) -> list[tuple[int, dict[str, Any]]]:
         """Columns of earlier rows completed since the last call: ``(frame, values)``."""
@@ -232,29 +263,42 @@ class CameraFrontend:
     @property
     def pending(self) -> bool:
         """Whether rows already returned may still be completed by later frames."""
-        return bool(self._kf is not None and (self._kf.pending or self._kf.rot_pending))
+        kf = self._kf
+        if kf is None:
+            return False
+        return bool(kf.pending or kf.rot_pending or self._span_open(kf))
+
+    def _span_open(self, kf: _Keyframe) -> bool:
+        """Whether the open interval may still get a span reading: it has rows and has lasted
+        under ``rot_span_s`` so far."""
+        if not kf.row_frames or self._prev is None or self._K is None:
+            return False
+        return (self._prev.t_ns - kf.view.t_ns) * 1e-9 < self.params.rot_span_s
 
     # ------------------------------------------------------------------ state (for windows)
-    def state_key(self) -> tuple[int, int] | None:
+    def state_key(self) -> tuple[int, int, int] | None:
         """What the rows of the following frames depend on, in comparable form.
 
-        The reference keyframe and the keyframe before it (-1 when tracks do not link them).
-        Every track, count and direction the frontend keeps is built from the frames since the
-        earlier of the two, which became a keyframe with fresh tracks; so two runs with the
-        same key after frame f hold the same state and give the same rows from f + 1 on (the
-        previous frame is f in both).
+        The reference keyframe and the keyframe before it (-1 when tracks do not link them),
+        and the oldest frame kept for the span reading (-1 when none). Every track, count and
+        direction the frontend keeps is built from the frames since the earlier of the two
+        keyframes, which became a keyframe with fresh tracks, and the kept frames are pruned by
+        time alone; so two runs with the same key after frame f hold the same state and give
+        the same rows from f + 1 on (the previous frame is f in both).
         """
         kf = self._kf
         if kf is None:
             return None
-        return kf.view.index, -1 if kf.parent is None else kf.parent.index
+        return kf.view.index, -1 if kf.parent is None else kf.parent.index, \
+            self._history[0].index if self._history else -1
 
-    def get_state(self) -> tuple[Any, Any]:
+    def get_state(self) -> tuple[Any, Any, Any]:
         """The frontend's state between frames (picklable), for handing a run on."""
-        return self._prev, self._kf
+        return self._prev, self._kf, list(self._history)
 
-    def set_state(self, state: tuple[Any, Any]) -> None:
-        self._prev, self._kf = state
+    def set_state(self, state: tuple[Any, ...]) -> None:
+        self._prev, self._kf = state[0], state[1]
+        self._history = list(state[2]) if len(state) > 2 else []
 
     # ------------------------------------------------------------------ stages
     def _detect(self, frame: CameraFrame, row: dict[str, Any]) -> _View:
@@ -276,7 +320,7 @@ class CameraFrontend:
         row["mean_intensity"] = mean
         und = undistort_points(feats.xy, self.intrinsics)
         return _View(frame.index, gray, feats, und,
-                     np.full(len(feats), -1, np.intp), mean)
+                     np.full(len(feats), -1, np.intp), mean, int(frame.t_ns))
 
     def _match(self, cur: _View, prev: _View, kf: _Keyframe, row: dict[str, Any]
                ) -> tuple[np.ndarray, np.ndarray]:
@@ -435,13 +479,28 @@ class CameraFrontend:
         line = math.degrees(math.atan(line_px / float(self._K[0, 0])))
         return own + kf.parent_deg < TWO_INTERVAL_MARGIN * line
 
-    def _close_interval(self) -> None:
+    def _remember(self, cur: _View) -> None:
+        """Keep ``cur`` for the span reading and forget the frames no later interval can read
+        against: all but the newest of those at least ``rot_span_s`` older than it."""
+        if self._K is None or self.params.rot_span_s <= 0:
+            return
+        self._history.append(_Past(cur.index, cur.t_ns, cur.feats.des, cur.und))
+        line = cur.t_ns - self.params.rot_span_s * 1e9
+        old = [i for i, h in enumerate(self._history) if h.t_ns <= line]
+        if old:
+            del self._history[:old[-1]]
+
+    def _close_interval(self, last: _View | None) -> None:
         """Take the readings that wait for the interval to close: the rotation-only fits that
-        can change a quadrant, and the two-interval readings if the interval was short."""
+        can change a quadrant, the span reading if the interval was shorter than
+        ``rot_span_s``, and the two-interval readings if the interval was short. ``last`` is
+        the interval's last frame."""
         kf = self._kf
         if kf is None:
             return
-        self._close_rotation_fits(kf)
+        fits = self._close_rotation_fits(kf)
+        if last is not None and kf.row_frames:
+            self._close_span(kf, last, fits)
         if not kf.pending:
             return
         pending, kf.pending = kf.pending, []
@@ -462,15 +521,16 @@ class CameraFrontend:
             upd["ms_diagnostic"] = (self._clock() - t0) * 1e3
             self._updates.append((frame, upd))
 
-    def _close_rotation_fits(self, kf: _Keyframe) -> None:
+    def _close_rotation_fits(self, kf: _Keyframe) -> list[float]:
         """The rotation-only fit of the frames where it can move the reading from the planar
         quadrant to the rotation quadrant (module docstring): frames whose own H/E and parallax
         are in the planar quadrant, and, when the interval's reading (medians over its upper
         half by parallax) is, the frames of that upper half; and the frames of that upper half
         when it turned (median rotation) at least ``rot_fit_turn_px``."""
         pending, kf.rot_pending = kf.rot_pending, []
+        fits: list[float] = []
         if not pending or self._K is None:
-            return
+            return fits
         p = self.params
         # a hair of margin: reading a frame the rules would not is harmless, the reverse not
         he_line = p.rot_fit_he * (1 - 1e-9)
@@ -487,8 +547,54 @@ class CameraFrontend:
                 continue
             t0 = self._clock()
             rpx, scale = rotation_only_fit(p_ref, p_cur, self._K)
+            fits.append(rpx)
             self._updates.append((frame, {"rot_only_px": rpx, "rot_focal_scale": scale,
                                           "ms_diagnostic": (self._clock() - t0) * 1e3}))
+        return fits
+
+    def _close_span(self, kf: _Keyframe, last: _View, fits: list[float]) -> None:
+        """The motion over at least ``rot_span_s``, for an interval shorter than that which
+        could read as a turn or as standing still (module docstring): the interval's last frame
+        against the newest kept frame at least ``rot_span_s`` before it, matched directly; E,
+        its residual, the parallax and the rotation-only fit, written to every row of the
+        interval. An interval reads as rotation or standing still only where its parallax
+        (the median over its upper half, as the rule reads it) is under
+        ``rot_fit_parallax_deg`` or a rotation-only fit explained a row within the homography
+        threshold, so only those are read."""
+        p = self.params
+        if self._K is None or p.rot_span_s <= 0:
+            return
+        if (last.t_ns - kf.view.t_ns) * 1e-9 >= p.rot_span_s:
+            return
+        par_line = p.rot_fit_parallax_deg * (1 - 1e-9)
+        par = np.array([r[0] for r in kf.reads])
+        # the interval's reading, as FD-ROT-001 takes it: the median over its upper half
+        low = bool(par.size) and bool(np.median(par[par >= np.median(par)]) < par_line)
+        fit = any(f <= homography_threshold_px(p.sigma_px) for f in fits)
+        if not (low or fit):
+            return
+        line = last.t_ns - p.rot_span_s * 1e9
+        old = [h for h in self._history if h.t_ns <= line and h.index < last.index]
+        if not old:
+            return
+        past = old[-1]
+        t0 = self._clock()
+        m = match(last.feats.des, past.des, p.ratio, p.mutual)
+        upd: dict[str, Any] = {}
+        if len(m.query) >= max(p.min_correspondences, E_SAMPLE):
+            p_old, p_cur = past.und[m.train], last.und[m.query]
+            tv = two_view(p_old, p_cur, self._K, sigma_px=p.sigma_px,
+                          confidence=p.ransac_confidence, max_iters=p.ransac_max_iters,
+                          seed=p.seed, pose_information=False)
+            if tv.ok_e and tv.inlier_mask is not None:
+                rpx, _ = rotation_only_fit(p_old[tv.inlier_mask], p_cur[tv.inlier_mask], self._K)
+                upd = {"span_frame": past.index, "span_dt_s": (last.t_ns - past.t_ns) * 1e-9,
+                       "rot_only_px_span": rpx, "epi_residual_px_span": tv.epi_residual_px,
+                       "parallax_med_deg_span": tv.parallax_med_deg}
+        ms = (self._clock() - t0) * 1e3
+        for frame in kf.row_frames:
+            self._updates.append((frame, dict(upd)))
+        self._updates.append((last.index, {"ms_diagnostic": ms}))
 
     def _photometric(self, cur: _View, prev: _View, q: np.ndarray, t: np.ndarray,
                      row: dict[str, Any]) -> None:
@@ -534,6 +640,7 @@ class CameraFrontend:
             self._two_interval_sel = None
             with timer("geometry"):
                 lost = self._geometry(cur, kf, row)
+            kf.row_frames.append(cur.index)
             # frontdiag's own readings, not stages of the frontend: timed apart, so the
             # stage times (and budget projections from them) stay the frontend's
             with timer("diagnostic"):
@@ -543,8 +650,9 @@ class CameraFrontend:
                 row["status"] = "no_features"
             reason = self._keyframe_reason(lost, kf, row)
         self.last_annotation = self._annotation(cur)
+        self._remember(cur)
         if reason:
-            self._close_interval()
+            self._close_interval(cur)
             # the new reference keeps its tracks into the old one, unless they were lost
             linked = kf is not None and reason != "lost"
             parent_idx = cur.kf_idx if linked else None

@@ -769,8 +769,28 @@ def _wanted_quadrant(df: pd.DataFrame, p: Params) -> tuple[pd.DataFrame, np.ndar
     return read, q == (3 if p["want"] == "pure_rotation" else 2)
 
 
+def span_translates(rot_px: np.ndarray, epi_px: np.ndarray, p: Params) -> np.ndarray:
+    """Where the motion over the span (``rot_only_px_span``, ``epi_residual_px_span``: the
+    interval's last frame against a frame at least a third of a second before it) shows a
+    translation: the rotation-only model leaves more than ``span_translation_px`` and more
+    than ``rot_fit_noise_ratio`` times E's own residual over the same points (rules with
+    span_translation_px; NaN, no span reading, never does).
+
+    Both lines, because each alone fails somewhere: a camera standing still leaves E fitting
+    sub-pixel jitter (0.03-0.3 px), so the ratio alone reads 2-35 whatever the motion, while
+    the pixel line alone assumes 1 px of localisation noise."""
+    if "span_translation_px" not in p:
+        return np.zeros(len(rot_px), dtype=bool)
+    with np.errstate(invalid="ignore"):
+        return np.asarray((rot_px > p["span_translation_px"])
+                          & (rot_px > p.get("rot_fit_noise_ratio", 0.0) * epi_px))
+
+
 def _he_parallax(df: pd.DataFrame, p: Params) -> np.ndarray:
     read, hit = _wanted_quadrant(df, p)
+    # a keyframe interval shorter than the turn it is part of: over the span the camera
+    # translated, so the short interval's reading is not pure rotation
+    hit &= ~span_translates(col(df, "rot_only_px_span"), col(df, "epi_residual_px_span"), p)
     with np.errstate(invalid="ignore"):
         if "min_entropy" in p:
             # features crowded into a small cone are locally planar: a homography fits them
@@ -941,6 +961,17 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                    f"explains the points ({rpx:.2g} px): h_over_e {he:.3g} is not read, since "
                    "with no translation E takes every correct correspondence for any epipole, "
                    "plus the mismatches along the one RANSAC picks")
+    span_px, span_epi = _v(row, "rot_only_px_span"), _v(row, "epi_residual_px_span")
+    if "span_translation_px" in p and not np.isnan(span_px):
+        moved = bool(span_translates(np.array([span_px]), np.array([span_epi]), p)[0])
+        ratio = span_px / span_epi if span_epi > 0 else float("inf")
+        out.append(f"over {_v(row, 'span_dt_s'):.2g} s (against frame "
+                   f"{int(_v(row, 'span_frame'))}, longer than this keyframe interval): the "
+                   f"rotation-only model leaves {span_px:.2g} px, {ratio:.2g}x E's residual "
+                   f"(lines {p['span_translation_px']:g} px and "
+                   f"{p.get('rot_fit_noise_ratio', 0):g}x): "
+                   + ("the camera translated, so the short interval's reading is not pure "
+                      "rotation" if moved else "still a rotation (or standing still)"))
     if q == 3:
         why = (f"parallax {par:.3g} deg < {p['parallax_split_deg']:g}"
                if par < p["parallax_split_deg"] else
@@ -1190,24 +1221,26 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
           "frame", "camera", ("h_over_e", "parallax_med_deg", "ref_frame", "entropy_norm",
                               "entropy_inliers_norm", "entropy_inliers_shared_norm",
                               "parallax_med_px", "rot_deg", "rot_only_px", "epi_residual_px",
-                              "ransac_iters_required", "ransac_iters_run"),
+                              "ransac_iters_required", "ransac_iters_run", "rot_only_px_span",
+                              "epi_residual_px_span"),
           {"want": "choice:pure_rotation|planar_degeneracy", "he_degenerate": _NUM,
            "parallax_split_deg": _NUM, "read_at": "choice:keyframe|frame",
            "min_entropy": _NUM, "min_parallax_px": _NUM, "still_rotation_deg": _NUM,
            "still_parallax_px": _NUM, "rot_fit_px": _NUM, "rot_fit_turn_px": _NUM,
            "rot_fit_focal_min": _NUM, "rot_fit_focal_max": _NUM, "rot_fit_noise_ratio": _NUM,
-           "max_starvation": _NUM},
+           "max_starvation": _NUM, "span_translation_px": _NUM},
           {"h_over_e": "max", "parallax_med_deg": "min"},
           {"he_degenerate": "h_over_e", "parallax_split_deg": "parallax_med_deg",
            "min_entropy": "entropy_norm", "min_parallax_px": "parallax_med_px",
            "still_rotation_deg": "rot_deg", "still_parallax_px": "parallax_med_px",
            "rot_fit_px": "rot_only_px", "rot_fit_focal_min": "rot_focal_scale",
-           "rot_fit_focal_max": "rot_focal_scale", "max_starvation": "ransac_iters_required"},
+           "rot_fit_focal_max": "rot_focal_scale", "max_starvation": "ransac_iters_required",
+           "span_translation_px": "rot_only_px_span"},
           frame=_he_parallax, explain=_he_parallax_explain, context=_keyframe_read,
           optional=frozenset({"min_entropy", "min_parallax_px", "still_rotation_deg",
                               "still_parallax_px", "rot_fit_px", "rot_fit_turn_px",
                               "rot_fit_focal_min", "rot_fit_focal_max", "rot_fit_noise_ratio",
-                              "max_starvation"}),
+                              "max_starvation", "span_translation_px"}),
           unread=_he_parallax_unread),
     Check("clustering", "low keypoint entropy with enough features, confirmed by the "
           "condition number of the pose information matrix",
