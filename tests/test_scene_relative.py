@@ -390,3 +390,4 @@ def test_a_short_interval_is_not_rotation_when_the_camera_translated_over_its_sp
     if span:
         assert ("the camera translated" in span[0]) == (not want)
         assert f"{span_px:.2g} px" in span[0]
+    assert any("shorter than the motion it is part of" in ln for ln in lines) == (not want)

@@ -915,7 +915,12 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                       if fits else ": a translation moved the points beyond what the "
                       "localisation noise explains" if within else
                       ": a translation moved the points"))
-    if q == 3 and (still or turned) and not he > p["he_degenerate"]:
+    span_px, span_epi = _v(row, "rot_only_px_span"), _v(row, "epi_residual_px_span")
+    span_moved = bool(span_translates(np.array([span_px]), np.array([span_epi]), p)[0])
+    if q == 3 and span_moved:
+        out.append("this keyframe interval alone reads like a turn or a stop (H/E high, "
+                   "parallax low), but it is shorter than the motion it is part of (below)")
+    elif q == 3 and (still or turned) and not he > p["he_degenerate"]:
         out.append("pure-rotation reading from the motion alone (H/E set aside, below): do not "
                    "estimate t, do not triangulate")
     else:
@@ -961,9 +966,8 @@ def _he_parallax_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                    f"explains the points ({rpx:.2g} px): h_over_e {he:.3g} is not read, since "
                    "with no translation E takes every correct correspondence for any epipole, "
                    "plus the mismatches along the one RANSAC picks")
-    span_px, span_epi = _v(row, "rot_only_px_span"), _v(row, "epi_residual_px_span")
     if "span_translation_px" in p and not np.isnan(span_px):
-        moved = bool(span_translates(np.array([span_px]), np.array([span_epi]), p)[0])
+        moved = span_moved
         ratio = span_px / span_epi if span_epi > 0 else float("inf")
         out.append(f"over {_v(row, 'span_dt_s'):.2g} s (against frame "
                    f"{int(_v(row, 'span_frame'))}, longer than this keyframe interval): the "
