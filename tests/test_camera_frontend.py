@@ -487,3 +487,20 @@ def test_no_span_reading_where_the_interval_is_long_or_moves_enough() -> None:
     assert all(r["span_frame"] == -1 for r in rows)
     rows = _span_rows(walk(24, step_deg=0.05, step_m=0.008), kf_max_frames=3, rot_span_s=0.0)
     assert all(r["span_frame"] == -1 for r in rows)
+
+
+def test_span_history_stays_bounded_when_stamps_do_not_advance() -> None:
+    # a driver that repeats stamps never makes a frame 0.33 s old: no reading, and the kept
+    # frames stay bounded; stamps that go back start the history afresh; nothing stays pending
+    from frontdiag.camera import frontend as F
+    grays = walk(8, step_deg=0.05, step_m=0.008)
+    fe = CameraFrontend(CameraParams(kf_max_frames=3), Intrinsics(K=K))
+    n = F.SPAN_HISTORY_MAX + 20
+    for i in range(n):
+        fe.process(CameraFrame(i, 5_000_000_000, 5_000_000_000, "/cam", grays[i % 8], "mono8"))
+    assert len(fe._history) == F.SPAN_HISTORY_MAX
+    assert all(v.get("span_frame", -1) == -1 for _, v in fe.take_updates())
+    fe.process(CameraFrame(n, 1_000_000_000, 1_000_000_000, "/cam", grays[0], "mono8"))
+    assert len(fe._history) == 1
+    fe.finish()
+    assert not fe.pending

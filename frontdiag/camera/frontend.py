@@ -109,6 +109,9 @@ NAN = float("nan")
 # two-interval readings are skipped where both intervals' largest parallaxes together stay under
 # this share of the line they are read against (``_two_intervals_short``)
 TWO_INTERVAL_MARGIN = 0.5
+# frames kept for the span reading at most: 0.33 s at 750 Hz, about 10 MB of descriptors and
+# points at 1000 keypoints; only stamps that do not advance come near it
+SPAN_HISTORY_MAX = 256
 
 
 @dataclass(frozen=True)
@@ -484,11 +487,17 @@ class CameraFrontend:
         against: all but the newest of those at least ``rot_span_s`` older than it."""
         if self._K is None or self.params.rot_span_s <= 0:
             return
+        # stamps that went back (a recording spliced or replayed) start the history afresh
+        if self._history and self._history[-1].t_ns > cur.t_ns:
+            self._history = []
         self._history.append(_Past(cur.index, cur.t_ns, cur.feats.des, cur.und))
         line = cur.t_ns - self.params.rot_span_s * 1e9
         old = [i for i, h in enumerate(self._history) if h.t_ns <= line]
         if old:
             del self._history[:old[-1]]
+        # stamps that do not advance (a camera driver that repeats them) never make a frame
+        # old enough: the history stays bounded anyway
+        del self._history[:-SPAN_HISTORY_MAX]
 
     def _close_interval(self, last: _View | None) -> None:
         """Take the readings that wait for the interval to close: the rotation-only fits that
@@ -501,6 +510,7 @@ class CameraFrontend:
         fits = self._close_rotation_fits(kf)
         if last is not None and kf.row_frames:
             self._close_span(kf, last, fits)
+        kf.row_frames = []  # read (or not) once: nothing of this interval is pending
         if not kf.pending:
             return
         pending, kf.pending = kf.pending, []
