@@ -50,8 +50,8 @@ A keyframe interval can be much shorter than a turn or a stop (at 30 Hz a hand-h
 tracked share falls under 0.9 within 1-4 frames of a sweep), and over so short a baseline a
 walking camera's parallax stays within the noise a rotation-only model leaves. So where an
 interval lasted under ``rot_span_s`` (0.33 s, the time FD-ROT-001's persistence window spans)
-and could read as a turn or as standing still (a row with parallax under
-``rot_fit_parallax_deg``, or a rotation-only fit within the homography threshold), its last
+and could read as a turn or as standing still (its parallax, the median over its upper half,
+under ``rot_fit_parallax_deg``, or a rotation-only fit within the homography threshold), its last
 frame is also read against the newest kept frame at least ``rot_span_s`` before it, matched
 directly (``span_frame``): E, its residual, the parallax and the rotation-only fit over the
 span (``*_span`` columns, on every row of the interval). A camera that only turns or stands
@@ -286,7 +286,7 @@ class CameraFrontend:
         and the oldest frame kept for the span reading (-1 when none). Every track, count and
         direction the frontend keeps is built from the frames since the earlier of the two
         keyframes, which became a keyframe with fresh tracks, and the kept frames are pruned by
-        time alone; so two runs with the same key after frame f hold the same state and give
+        their stamps alone (and a cap); so two runs with the same key after frame f hold the same state and give
         the same rows from f + 1 on (the previous frame is f in both).
         """
         kf = self._kf
