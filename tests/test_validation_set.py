@@ -270,3 +270,22 @@ def test_label_aid_can_leave_out_clipped_patches() -> None:
     assert n >= 30 and n2 == n
     assert left_out == pytest.approx(1.10, abs=0.02)
     assert kept < left_out - 0.01
+
+
+@pytest.mark.skipif(not (VALDATA / "dev" / "zed_lab").exists(),
+                    reason="validation recordings not built (python validation/build.py)")
+def test_a_hand_held_walk_at_30_hz_is_not_read_as_rotation() -> None:
+    """The dev half's hand-held ZED2: keyframe intervals of 1-4 frames fit a rotation within
+    the noise, but over 0.33 s the camera's translation shows (FD-ROT-001's span reading), so
+    none of its healthy frames reads pure_rotation; the fixed camera over people walking still
+    reads standing still on every frame."""
+    from validation import score as vscore
+
+    m = build.load_manifest()
+    by = {r["name"]: r for r in m["recordings"]}
+    rep = vscore.score_recording(build.output_path(VALDATA, by["zed_lab"]))
+    rot = next(c for c in rep.conditions if c.condition == "pure_rotation")
+    assert rot.healthy_frames == 71 and rot.false_alarms == 0
+    still = vscore.score_recording(build.output_path(VALDATA, by["people_fixed_camera"]))
+    rot = next(c for c in still.conditions if c.condition == "pure_rotation")
+    assert rot.episodes_found == rot.episodes == 1 and rot.recall == 1.0
