@@ -1,10 +1,11 @@
-"""One helper to time pipeline stages; tests inject the clock."""
+"""One helper to time pipeline stages (tests inject the clock), and a stream's frame rate."""
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from typing import Any
 
 Clock = Callable[[], float]
 
@@ -74,3 +75,14 @@ class GapDetector:
         else:
             self._dts = [*self._dts, dt][-self._window:]
         return gap
+
+
+def median_rate_hz(t_ns: Any) -> float:
+    """Frames per second of a stream from its stamps (ns, any order): 1 / the median positive
+    step between them; NaN without two distinct stamps."""
+    import numpy as np
+
+    t = np.asarray(t_ns, dtype=np.float64)
+    step = np.diff(np.sort(t[~np.isnan(t)]))
+    step = step[step > 0]
+    return 1e9 / float(np.median(step)) if step.size else float("nan")

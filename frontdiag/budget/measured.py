@@ -21,6 +21,7 @@ import numpy as np
 from frontdiag.budget import model
 from frontdiag.budget.targets import Target
 from frontdiag.errors import ConfigError, RecordingError
+from frontdiag.timing import median_rate_hz
 
 # recorded column -> (label, model stages whose time ratio projects it)
 CAMERA_COLUMNS: dict[str, tuple[str, tuple[str, ...]]] = {
@@ -175,12 +176,9 @@ def _period(rows: Any, manifest: dict[str, Any], sensor: str, explicit_hz: float
     if hz:
         return 1000.0 / hz, f"{hz:g} Hz from manifest.json"
     if "t_ns" in rows and len(rows) >= 3:
-        t = np.sort(rows["t_ns"].dropna().to_numpy(dtype=np.int64))
-        dt = np.diff(t)
-        dt = dt[dt > 0]
-        if dt.size:
-            period = float(np.median(dt)) / 1e6
-            return period, f"{1000 / period:.3g} Hz from the median frame interval"
+        hz = median_rate_hz(rows["t_ns"].to_numpy(dtype=np.float64))
+        if hz == hz:
+            return 1000.0 / hz, f"{hz:.3g} Hz from the median frame interval"
     return 1000.0 / default_hz, f"{default_hz:g} Hz default (no rate in the result directory)"
 
 

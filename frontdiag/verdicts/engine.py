@@ -19,6 +19,7 @@ import pandas as pd
 
 from frontdiag.conditions import CONDITIONS
 from frontdiag.metrics import DEFAULT_FEATURE_BUDGET, keypoint_fill
+from frontdiag.timing import median_rate_hz
 from frontdiag.verdicts.checks import CHECKS, RunOutcome, col
 from frontdiag.verdicts.loader import Ruleset
 from frontdiag.verdicts.model import SEVERITY_RANK, Rule
@@ -94,12 +95,8 @@ def persist(raw: np.ndarray, k: int, n: int) -> np.ndarray:
 
 
 def frame_rate(rows: pd.DataFrame) -> float:
-    """Frames per second of one topic's rows: 1 / the median positive step between sorted
-    stamps; NaN without two distinct stamps."""
-    t = col(rows, "t_ns")
-    step = np.diff(np.sort(t[~np.isnan(t)]))
-    step = step[step > 0]
-    return 1e9 / float(np.median(step)) if step.size else float("nan")
+    """Frames per second of one topic's rows, from their stamps (``median_rate_hz``)."""
+    return median_rate_hz(col(rows, "t_ns"))
 
 
 def rule_mask(rule: Rule, rows: pd.DataFrame) -> np.ndarray:
