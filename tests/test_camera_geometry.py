@@ -134,3 +134,26 @@ def test_keypoints_are_undistorted_to_the_ideal_pinhole(model: str, D: np.ndarra
     back = undistort_points(distorted.reshape(-1, 2).astype(np.float32),
                             Intrinsics(K=K, D=D, model=model))
     assert np.abs(back - ideal).max() < 0.05
+
+
+def test_two_view_without_the_homography_gives_the_same_essential_reading() -> None:
+    # the span reading skips H; E, its inliers, the pose and the residual must not change
+    rng = np.random.default_rng(4)
+    K = np.array([[500.0, 0, 320], [0, 500.0, 240], [0, 0, 1]])
+    X = np.column_stack([rng.uniform(-2, 2, 150), rng.uniform(-1.5, 1.5, 150),
+                         rng.uniform(3, 9, 150)])
+    R, _ = cv2.Rodrigues(np.array([0.0, 0.03, 0.01]))
+    t = np.array([0.2, 0.0, 0.05])
+
+    def project(P: np.ndarray) -> np.ndarray:
+        q = P @ K.T
+        return q[:, :2] / q[:, 2:]
+
+    a = project(X) + rng.normal(0, 0.5, (150, 2))
+    b = project(X @ R.T + t) + rng.normal(0, 0.5, (150, 2))
+    full, bare = two_view(a, b, K), two_view(a, b, K, homography=False)
+    assert full.ok_e and bare.ok_e and full.inliers_h > 0 and np.isnan(bare.inliers_h)
+    assert bare.H is None
+    for name in ("inliers_e", "rot_deg", "parallax_med_deg", "epi_residual_px", "pose_info_cond"):
+        assert getattr(bare, name) == getattr(full, name), name
+    assert np.array_equal(bare.inlier_mask, full.inlier_mask)

@@ -595,7 +595,7 @@ class CameraFrontend:
             p_old, p_cur = past.und[m.train], last.und[m.query]
             tv = two_view(p_old, p_cur, self._K, sigma_px=p.sigma_px,
                           confidence=p.ransac_confidence, max_iters=p.ransac_max_iters,
-                          seed=p.seed, pose_information=False)
+                          seed=p.seed, pose_information=False, homography=False)
             if tv.ok_e and tv.inlier_mask is not None:
                 rpx, _ = rotation_only_fit(p_old[tv.inlier_mask], p_cur[tv.inlier_mask], self._K)
                 upd = {"span_frame": past.index, "span_dt_s": (last.t_ns - past.t_ns) * 1e-9,

@@ -410,15 +410,17 @@ def sampson_px(p_ref: np.ndarray, p_cur: np.ndarray, E: np.ndarray, K: np.ndarra
 
 def two_view(p_ref: np.ndarray, p_cur: np.ndarray, K: np.ndarray | None, *,
              sigma_px: float = 1.0, confidence: float = 0.999, max_iters: int = 1000,
-             seed: int = 0, pose_information: bool = True) -> TwoView:
+             seed: int = 0, pose_information: bool = True,
+             homography: bool = True) -> TwoView:
     """E (if K is known) and H with USAC_MAGSAC on the same correspondences, the pose from E,
     parallax and (unless ``pose_information`` is False) the pose information condition.
-    Points are undistorted pixel coordinates."""
+    ``homography`` False skips H (``inliers_h`` NaN); E does not depend on it (its RANSAC is
+    seeded on its own). Points are undistorted pixel coordinates."""
     n = len(p_ref)
     p_ref = np.ascontiguousarray(p_ref, np.float64)
     p_cur = np.ascontiguousarray(p_cur, np.float64)
     inl_h, H = fit_homography(p_ref, p_cur, homography_threshold_px(sigma_px), confidence,
-                              max_iters, seed)
+                              max_iters, seed) if homography else (float("nan"), None)
     if K is None or n < E_SAMPLE:
         return TwoView(n, inliers_h=inl_h, H=H)
     cv2.setRNGSeed(seed)
