@@ -163,6 +163,10 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
        "lower"),
     # --- camera: photometric
     _M("mean_intensity", "grey level", "camera", "frame mean intensity (0-255)"),
+    _M("lit_share", "ratio", "camera",
+       "share of the pixels brighter than the FAST threshold (20 grey levels): where no pixel "
+       "exceeds it no corner can fire at it; under 0.01 the view is black but for a few lights",
+       "higher"),
     _M("d_mean_intensity", "grey level", "camera",
        "change of frame mean intensity from the previous frame; >8 is an exposure step"),
     _M("photo_residual_med", "grey level", "camera",

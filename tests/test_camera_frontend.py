@@ -355,6 +355,46 @@ def _pencil(length: int) -> np.ndarray:
     return img
 
 
+def _night(gain: float, seed: int) -> np.ndarray:
+    """A textured scene at `gain` times its exposure, four lamps at full brightness and sensor
+    noise (σ 2 grey levels), 1280x720."""
+    rng = np.random.default_rng(7)
+    cells = rng.integers(0, 2, (45, 80)).astype(np.float64) * 160 + 40
+    img = cv2.resize(cells, (1280, 720), interpolation=cv2.INTER_NEAREST) * gain
+    for x, y in ((200, 150), (640, 100), (1000, 400), (300, 600)):
+        cv2.circle(img, (x, y), 12, 255, -1)
+    noise = np.random.default_rng(seed).normal(0.0, 2.0, img.shape)
+    return np.clip(img + noise, 0, 255).astype(np.uint8)
+
+
+def test_a_black_view_is_a_detection_failure_whatever_the_feature_count() -> None:
+    """At 1/64 of its exposure the scene is black but for four lamps: under 1 % of the pixels
+    exceed the FAST threshold, while the retry at t = 7 still fills 38 % of the budget, so
+    neither the feature count (FD-DET-001) nor texture at scale (FD-DET-002) reads it; only
+    lit_share does (FD-DET-003). At 1/8 the view is dark but holds a scene."""
+    import pandas as pd
+
+    from frontdiag.camera.features import lit_share
+    from frontdiag.verdicts import load_ruleset
+    from frontdiag.verdicts.engine import rule_mask
+
+    fe = CameraFrontend(CameraParams(), None)
+    rows = [fe.process(frame(i, _night(g, i))) for i, g in enumerate((1.0, 1 / 8, 1 / 64))]
+    lit, dark, black = rows
+    assert lit["lit_share"] > 0.99 and 0.3 < dark["lit_share"] < 0.7
+    assert black["lit_share"] < 0.01 and black["keypoint_fill"] >= 0.3
+    rules = {r.id: r for r in load_ruleset().rules}
+    table = pd.DataFrame(rows)
+    assert rule_mask(rules["FD-DET-003"], table).tolist() == [False, False, True]
+    assert not rule_mask(rules["FD-DET-001"], table).any()
+    assert not rule_mask(rules["FD-DET-002"], table).any()
+    # the count is of pixels strictly above the threshold the frontend detects at
+    img = np.zeros((10, 10), np.uint8)
+    img[0, :3] = (20, 21, 255)
+    assert lit_share(img, 20) == 0.02 and lit_share(img, 0) == 0.03
+    assert math.isnan(lit_share(np.zeros((0, 0), np.uint8), 20))
+
+
 def test_noise_fills_the_budget_but_leaves_no_texture_at_scale() -> None:
     """Grain alone: the retry at t = 7 fills most of the budget, but no strong corner survives
     at level >= 3. A textured view keeps most of the 297 those levels are given. A pencil on

@@ -289,3 +289,19 @@ def test_a_hand_held_walk_at_30_hz_is_not_read_as_rotation() -> None:
     still = vscore.score_recording(build.output_path(VALDATA, by["people_fixed_camera"]))
     rot = next(c for c in still.conditions if c.condition == "pure_rotation")
     assert rot.episodes_found == rot.episodes == 1 and rot.recall == 1.0
+
+
+@pytest.mark.skipif(not (VALDATA / "dev" / "bracket_night_street.mcap").exists(),
+                    reason="validation recordings not built (python validation/build.py)")
+def test_a_black_night_street_is_a_detection_failure() -> None:
+    """The dev half's night-street bracket: the last two shots are black (under 1 % of the
+    pixels above 20 grey levels) yet keep 730-778 features from lamps and noise; FD-DET-003
+    reads them, and none of the eight shots before them."""
+    from frontdiag.api import analyze
+
+    m = build.load_manifest()
+    rec = next(r for r in m["recordings"] if r["name"] == "bracket_night_street")
+    frames = analyze(build.output_path(VALDATA, rec))
+    black = frames["rules"].map(lambda r: "FD-DET-003" in r).tolist()
+    assert black == [False] * 8 + [True] * 2
+    assert (frames["keypoint_fill"].iloc[8:] >= 0.3).all()

@@ -112,6 +112,20 @@ def coarse_texture(feats: Features, width: int, height: int, strong: float
     return n, float(cv2.contourArea(hull)) / float(width * height)
 
 
+def lit_share(gray: np.ndarray, threshold: int) -> float:
+    """Share of the pixels brighter than ``threshold`` grey levels (the FAST threshold).
+
+    A FAST corner at threshold t needs ring pixels more than t grey levels from the centre, so
+    where no pixel exceeds t none can fire at t; in a view with almost no such pixels the
+    detector's corners sit on the few lit pixels (lamps, windows) and, at the lower retry
+    threshold, on sensor noise.
+    """
+    if gray.size == 0:
+        return float("nan")
+    _, lit = cv2.threshold(gray, threshold, 255, cv2.THRESH_BINARY)  # 255 where > threshold
+    return cv2.countNonZero(lit) / float(gray.size)
+
+
 def level_budgets(n_features: int, n_levels: int, scale_factor: float) -> list[int]:
     """Features per pyramid level, proportional to level area; the remainder goes to the top.
 

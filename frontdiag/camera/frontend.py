@@ -78,6 +78,7 @@ from frontdiag.camera.features import (
     coarse_texture,
     entropy_from_counts,
     grid_counts,
+    lit_share,
     shared_entropy,
     spatial_entropy,
 )
@@ -204,7 +205,7 @@ def _row_template() -> dict[str, Any]:
         "n_keypoints": 0, "n_weak_keypoints": 0, "keypoint_fill": NAN, "entropy_norm": NAN,
         "occupied_cells": 0, "entropy_inliers_norm": NAN, "entropy_inliers_shared_norm": NAN,
         "n_coarse_keypoints": 0,
-        "coarse_hull_share": NAN,
+        "coarse_hull_share": NAN, "lit_share": NAN,
         "n_putative": 0, "ratio_reject_rate": NAN, "ratio_ambiguous_rate": NAN, "n_matches": 0,
         "ref_frame": -1, "n_ref_matches": 0, "tracked_share": NAN,
         "inliers_e": NAN, "inliers_h": NAN, "h_over_e": NAN, "inlier_ratio": NAN,
@@ -321,6 +322,7 @@ class CameraFrontend:
                    coarse_hull_share=hull)
         mean = float(cv2.mean(gray)[0]) if gray.size else NAN
         row["mean_intensity"] = mean
+        row["lit_share"] = lit_share(gray, self.params.fast_threshold) if gray.size else NAN
         und = undistort_points(feats.xy, self.intrinsics)
         return _View(frame.index, gray, feats, und,
                      np.full(len(feats), -1, np.intp), mean, int(frame.t_ns))
