@@ -27,7 +27,7 @@ import pandas as pd
 
 from frontdiag import __version__
 from frontdiag.errors import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, ConfigError, FrontdiagError
-from frontdiag.io.readers import recording_files, recording_size
+from frontdiag.io.readers import recording_files, recording_size, split_parts
 
 log = logging.getLogger(__name__)
 
@@ -66,7 +66,7 @@ def discover(inputs: Iterable[str | Path]) -> list[Path]:
             raise ConfigError(f"{text}: no such file, folder or matching recording",
                               hint="pass recordings, folders of recordings or a quoted glob")
         for p in paths:
-            if p.is_dir() and not (p / "metadata.yaml").exists() and not list(p.glob("*.bag")):
+            if p.is_dir() and not (p / "metadata.yaml").exists() and not split_parts(p):
                 found += sorted(c for c in p.iterdir()
                                 if (c.is_file() and c.suffix in RECORDING_SUFFIXES)
                                 or (c.is_dir() and (c / "metadata.yaml").exists()))

@@ -75,6 +75,50 @@ def test_discover_reads_folders_and_globs(logs: Path) -> None:
         discover([logs / "nope*.mcap"])
 
 
+def test_a_folder_of_separate_bags_is_a_fleet_and_split_parts_are_one_recording(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`rosbag record --split` names its parts NAME_0.bag, NAME_1.bag, ...: such a folder is one
+    recording read end to end. A folder of differently named bags, or of bags beside other
+    recordings, holds separate recordings: each is analysed on its own (it was read as one
+    chain before)."""
+    from frontdiag.errors import RecordingError
+    from frontdiag.io.readers import plan, split_parts
+
+    split = tmp_path / "split"
+    split.mkdir()
+    write_recording(split / "run_2024-05-01_0.bag", "bag", n=6)
+    write_recording(split / "run_2024-05-01_1.bag", "bag", n=6, seed=1)
+    (split / "notes.txt").write_text("not a recording")
+    assert split_parts(split) and discover([split]) == [split.resolve()]
+    assert [f.name for f in plan(split).files] == ["run_2024-05-01_0.bag", "run_2024-05-01_1.bag"]
+
+    fleet = tmp_path / "fleet"
+    fleet.mkdir()
+    write_recording(fleet / "aisle.bag", "bag", n=6)
+    write_recording(fleet / "dock.bag", "bag", n=6, seed=1)
+    mixed = tmp_path / "mixed"
+    mixed.mkdir()
+    write_recording(mixed / "run_0.bag", "bag", n=6)
+    write_recording(mixed / "other.mcap", "mcap", n=6)
+    gap = tmp_path / "gap"
+    gap.mkdir()
+    write_recording(gap / "run_0.bag", "bag", n=6)
+    write_recording(gap / "run_2.bag", "bag", n=6)
+    for folder, names in ((fleet, ["aisle.bag", "dock.bag"]),
+                          (mixed, ["other.mcap", "run_0.bag"]), (gap, ["run_0.bag", "run_2.bag"])):
+        assert not split_parts(folder)
+        assert [p.name for p in discover([folder])] == names
+        with pytest.raises(RecordingError, match="separate recordings"):
+            plan(folder)
+    out = tmp_path / "out"
+    assert main(["analyze", str(fleet), "--out", str(out)]) in (0, 1)
+    assert sorted(_summary(out)["recording"]) == ["aisle", "dock"]
+    assert (out / "aisle" / "frames.parquet").exists()
+    capsys.readouterr()
+    assert main(["analyze", str(fleet)]) == 2  # several recordings need --out
+    assert "--out" in capsys.readouterr().err
+
+
 def test_the_largest_recordings_are_handed_out_first(tmp_path: Path) -> None:
     # longest-processing-time first: a large recording started last would run alone at the end
     d = tmp_path / "in"

@@ -12,9 +12,10 @@ from frontdiag.cli import EPILOG
 
 HELP = """Re-run the camera (and LiDAR) frontend on a recording, frame by frame.
 
-Reads ROS 1 .bag (or a folder of split bags), ROS 2 bag folders (.db3 or .mcap storage),
-standalone .db3/.mcap files and plain MCAP (cdr or ros1 encoding). The only image topic (and
-the only LiDAR topic) is taken automatically; with several, frontdiag prints the exact
+Reads ROS 1 .bag (or a folder of split bags NAME_0.bag, NAME_1.bag, ...),
+ROS 2 bag folders (.db3 or .mcap storage), standalone .db3/.mcap files and
+plain MCAP (cdr or ros1 encoding). The only image topic (and the only LiDAR
+topic) is taken automatically; with several, frontdiag prints the exact
 --camera-topic / --lidar-topic to pass.
 
 Examples:

@@ -585,15 +585,16 @@ def plan(path: Path) -> _Plan:
                 # a single-file MCAP bag: the faster reader, same messages
                 return _Plan(MCAP_BACKEND, mcaps, "ros2 bag folder (mcap)")
             return _Plan("rosbags", [path], "ros2 bag folder")
-        # the files' magic bytes, not their names, say what they are
-        kinds: dict[str, list[Path]] = {}
-        for f in sorted((f for f in path.iterdir() if f.is_file()), key=_natural):
-            kind = _kind(f)
-            if kind:
-                kinds.setdefault(kind, []).append(f)
+        kinds = _folder_kinds(path)
         bags, db3, mcaps = kinds.get("bag", []), kinds.get("sqlite", []), kinds.get("mcap", [])
         if bags:
-            return _Plan("rosbags", bags, "ros1 split bags")
+            if split_parts(path, kinds):
+                return _Plan("rosbags", bags, "ros1 split bags")
+            raise RecordingError(path, f"folder holds {sum(map(len, kinds.values()))} separate "
+                                       "recordings, not the parts of one split bag "
+                                       "(NAME_0.bag, NAME_1.bag, ...)",
+                                 hint="pass --out DIR to analyse each into its own folder, or "
+                                      "pass one recording file")
         if len(db3) == 1 and not mcaps:
             return _Plan("rosbags", db3, "ros2 db3 (no metadata.yaml)")
         if len(mcaps) == 1 and not db3:
@@ -616,6 +617,43 @@ def plan(path: Path) -> _Plan:
 
 
 _MAGIC = {b"\x89MCAP": "mcap", b"#ROSBAG V2.0": "bag", b"SQLite format 3\x00": "sqlite"}
+
+
+def _folder_kinds(path: Path) -> dict[str, list[Path]]:
+    """The folder's recording files by kind (magic bytes, not names), in natural order; ROS 2
+    bag folders inside it under ``folder``."""
+    kinds: dict[str, list[Path]] = {}
+    for f in sorted(path.iterdir(), key=_natural):
+        kind = _kind(f) if f.is_file() else "folder" if (f / "metadata.yaml").exists() else None
+        if kind:
+            kinds.setdefault(kind, []).append(f)
+    return kinds
+
+
+def split_parts(path: Path, kinds: dict[str, list[Path]] | None = None) -> bool:
+    """Whether the folder holds the parts of one ROS 1 recording and nothing else.
+
+    ``rosbag record --split`` names its parts ``NAME_0.bag``, ``NAME_1.bag``, ... (NAME often
+    a date); a folder of separate recordings (``2024-05-01-10-00-00.bag``, ``aisle.bag``) is a
+    fleet, not one recording read end to end. So: every recording file in the folder is a ROS 1
+    bag, and either there is one, or all share one NAME with consecutive part numbers. Recordings
+    named like parts of one split (``run_1.bag``, ``run_2.bag``) are read as one; name them
+    (a glob, or the files) to analyse them separately.
+    """
+    import re
+
+    kinds = _folder_kinds(path) if kinds is None else kinds
+    bags = kinds.get("bag", [])
+    if not bags or any(k != "bag" for k in kinds):
+        return False
+    if len(bags) == 1:
+        return True
+    parts = [re.fullmatch(r"(.+)_(\d+)", b.stem) for b in bags]
+    if not all(parts):
+        return False
+    names = {m.group(1) for m in parts if m}
+    numbers = sorted(int(m.group(2)) for m in parts if m)
+    return len(names) == 1 and numbers == list(range(numbers[0], numbers[0] + len(numbers)))
 
 
 def _kind(path: Path) -> str | None:
