@@ -197,6 +197,19 @@ def _json_default(obj: Any) -> Any:
     return str(obj)
 
 
+def result_dir_hint(d: Path, default: str) -> str:
+    """What to pass instead of ``d``, a folder with no frames table: one recording's folder when
+    ``d`` is the ``--out`` folder of a fleet run (it holds ``fleet_summary.parquet`` and a folder
+    per recording), else ``default``."""
+    if not (Path(d) / "fleet_summary.parquet").is_file():
+        return default
+    names = sorted(c.name for c in Path(d).iterdir() if (c / "frames.parquet").is_file())
+    if not names:
+        return f"{d} is a fleet run's folder with no finished recording; {default}"
+    return (f"{d} is a fleet run's folder ({len(names)} recordings): pass one recording's "
+            f"folder, e.g. {Path(d) / names[0]}")
+
+
 def read_table(result: Path) -> pd.DataFrame:
     """Read ``frames.parquet`` (or ``frames.csv``) from a result directory or file."""
     result = Path(result)
@@ -205,7 +218,8 @@ def read_table(result: Path) -> pd.DataFrame:
             if (result / name).exists():
                 return read_table(result / name)
         raise RecordingError(result, "no frames.parquet or frames.csv in this directory",
-                             hint="write one with `frontdiag analyze LOG --out DIR`")
+                             hint=result_dir_hint(result,
+                                                  "write one with `frontdiag analyze LOG --out DIR`"))
     if not result.exists():
         raise RecordingError(result, "no such file or folder")
     try:

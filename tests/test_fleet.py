@@ -117,6 +117,13 @@ def test_a_folder_of_separate_bags_is_a_fleet_and_split_parts_are_one_recording(
     capsys.readouterr()
     assert main(["analyze", str(fleet)]) == 2  # several recordings need --out
     assert "--out" in capsys.readouterr().err
+    # the fleet's --out folder handed to a command that reads one result: say which to pass
+    (fleet / "labels.csv").write_text("t_start_ns,t_end_ns,condition\n")
+    for cmd in (["report", str(out)], ["explain", str(out), "--frame", "1"],
+                ["eval", str(out), "--labels", str(fleet / "labels.csv")]):
+        assert main(cmd) == 2
+        err = capsys.readouterr().err
+        assert "fleet run's folder (2 recordings)" in err and str(out / "aisle") in err, cmd
 
 
 def test_the_largest_recordings_are_handed_out_first(tmp_path: Path) -> None:

@@ -183,8 +183,11 @@ def build_explanation(result_dir: Path, frame: int | None, t: float | None,
             raise ConfigError(f"{result_dir} is a recording, not a result directory",
                               hint=f"run `frontdiag analyze {result_dir} --out DIR` first, then "
                               "`frontdiag explain DIR --frame N`")
+        from frontdiag.output import result_dir_hint
+
         raise ConfigError(f"{result_dir}: no frames.parquet",
-                          hint="pass the --out directory of `frontdiag analyze`")
+                          hint=result_dir_hint(result_dir, "pass the --out directory of "
+                                               "`frontdiag analyze`"))
     try:
         table = pd.read_parquet(path)
     except Exception as exc:  # pyarrow raises several unrelated types for a bad file
@@ -294,7 +297,8 @@ def render(data: dict[str, Any]) -> None:
 def register(app: typer.Typer) -> None:
     """Add `frontdiag explain` to the app."""
 
-    @app.command("explain")
+    @app.command("explain", short_help="Show one frame: every metric against its thresholds "
+                                       "and the rules that fired.")
     def explain(
         result_dir: Path = typer.Argument(..., metavar="RESULT_DIR",
                                           help="The --out directory of `frontdiag analyze` "

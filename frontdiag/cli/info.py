@@ -21,7 +21,9 @@ Examples:
 
 
 def register(app: typer.Typer) -> None:
-    app.command("info", help=HELP, epilog=EPILOG, no_args_is_help=True)(info_cmd)
+    app.command("info", help=HELP, epilog=EPILOG, no_args_is_help=True,
+                short_help="Show a recording's topics, rates and duration, and what analyze "
+                           "would read.")(info_cmd)
 
 
 def info_cmd(

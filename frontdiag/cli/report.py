@@ -59,8 +59,11 @@ def report_cmd(
         raise ConfigError(f"--fail-on {fail_on!r}: choose warn, fail or never")
     for d, flag in ((result_dir, "RESULT_DIR"), (baseline, "--baseline")):
         if d is not None and not (d / "frames.parquet").is_file():
+            from frontdiag.output import result_dir_hint
+
             raise ConfigError(f"{flag} {d}: no frames.parquet there",
-                              hint="pass the --out directory of `frontdiag analyze`")
+                              hint=result_dir_hint(d, "pass the --out directory of "
+                                                   "`frontdiag analyze`"))
     out = output if output is not None else result_dir / "report.html"
     if not out.parent.is_dir():
         raise ConfigError(f"--output {out}: folder {out.parent} does not exist")

@@ -593,8 +593,8 @@ def plan(path: Path) -> _Plan:
             raise RecordingError(path, f"folder holds {sum(map(len, kinds.values()))} separate "
                                        "recordings, not the parts of one split bag "
                                        "(NAME_0.bag, NAME_1.bag, ...)",
-                                 hint="pass --out DIR to analyse each into its own folder, or "
-                                      "pass one recording file")
+                                 hint="pass one of them; `frontdiag analyze DIR --out OUT` "
+                                      "analyses each into its own folder")
         if len(db3) == 1 and not mcaps:
             return _Plan("rosbags", db3, "ros2 db3 (no metadata.yaml)")
         if len(mcaps) == 1 and not db3:

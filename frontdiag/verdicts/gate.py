@@ -184,8 +184,11 @@ def gate(result: Verdicts, fail_on: FailOn = "fail",
 def _read_result_table(result_dir: Path) -> pd.DataFrame:
     path = result_dir / "frames.parquet" if result_dir.is_dir() else result_dir
     if not path.exists():
-        raise ConfigError(f"{result_dir}: no frames.parquet (pass the --out directory of an "
-                          "earlier `frontdiag analyze` run)")
+        from frontdiag.output import result_dir_hint
+
+        raise ConfigError(f"{result_dir}: no frames.parquet",
+                          hint=result_dir_hint(result_dir, "pass the --out directory of an "
+                                               "earlier `frontdiag analyze` run"))
     try:
         return pd.read_parquet(path)
     except Exception as exc:  # pyarrow raises several unrelated types for a damaged file
