@@ -88,6 +88,21 @@ def test_bayer_is_demosaiced(encoding: str) -> None:
     assert np.all(np.abs(gray.astype(int) - 100) <= 1)
 
 
+@pytest.mark.parametrize("encoding,luma_at", [("yuv422", 1), ("uyvy", 1),
+                                              ("yuv422_yuy2", 0), ("yuyv", 0)])
+def test_packed_yuv422_gives_its_luma(encoding: str, luma_at: int) -> None:
+    """UYVY ("yuv422") holds luma in the odd bytes, YUYV ("yuv422_yuy2") in the even ones; the
+    chroma bytes (set far from the luma here) must not leak into the grey image."""
+    ts = typestore(2)
+    luma = np.arange(48, dtype=np.uint8).reshape(6, 8) * 5
+    packed = np.full((6, 8, 2), 17, np.uint8)  # chroma 17
+    packed[:, :, luma_at] = luma
+    msg = build_message(ts, "sensor_msgs/msg/Image", image_msg(packed, encoding, 1))
+    gray, enc = GrayConverter("/cam")(msg, "sensor_msgs/msg/Image")
+    assert enc == encoding and gray.shape == (6, 8)
+    assert np.array_equal(gray, luma)
+
+
 def test_bayer_pattern_mapping_matches_colour_conversion() -> None:
     # RGGB: red at (0,0). A pure-red scene must come out as the grey of pure red.
     ts = typestore(2)
