@@ -109,8 +109,10 @@ def render_analysis(console: Console, result: Any, out_dir: Path | None,
             continue
         topic = topics.get(sensor)
         status = ", ".join(f"{k} {v}" for k, v in rows["status"].value_counts().items())
-        t = Table(title=escape(f"{sensor} {topic}: {len(rows)} frames ({status})"),
-                  title_justify="left", show_edge=False, header_style="bold")
+        # the heading is its own line: as the table's title it wrapped at the table's width
+        console.print(escape(f"{sensor} {topic}: {len(rows)} frames ({status})"),
+                      style="italic", highlight=False)
+        t = Table(show_edge=False, header_style="bold")
         t.add_column("metric")
         for c in ("p10", "median", "p90"):
             t.add_column(c, justify="right")
