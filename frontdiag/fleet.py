@@ -27,7 +27,12 @@ import pandas as pd
 
 from frontdiag import __version__
 from frontdiag.errors import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, ConfigError, FrontdiagError
-from frontdiag.io.readers import recording_files, recording_size, split_parts
+from frontdiag.io.readers import (
+    recording_files,
+    recording_kind,
+    recording_size,
+    split_parts,
+)
 
 log = logging.getLogger(__name__)
 
@@ -49,14 +54,18 @@ def is_recording(path: Path) -> bool:
     return True
 
 
-def discover(inputs: Iterable[str | Path]) -> list[Path]:
+def discover(inputs: Iterable[str | Path], skipped: list[Path] | None = None) -> list[Path]:
     """Recordings named by files, folders of recordings and glob patterns, in a stable order.
 
     A folder that is itself a recording (a ROS 2 bag folder, a folder of split .bag files) is
     one recording; any other folder is searched one level deep for recording files and bag
     folders. A name that matches nothing is an error (a typo should not give an empty fleet).
+    Files that are neither named like a recording (.bag, .mcap, .db3) nor start like one (a
+    glob's or the shell's ``logs/*`` also catches labels and notes) are left out, and listed in
+    ``skipped`` when it is given; a damaged ``run.mcap`` is kept, to be reported.
     """
     found: list[Path] = []
+    inputs = list(inputs)
     for item in inputs:
         text = str(item)
         # a path that exists is itself, even when its name holds glob characters ([cam1], ?)
@@ -66,6 +75,10 @@ def discover(inputs: Iterable[str | Path]) -> list[Path]:
             raise ConfigError(f"{text}: no such file, folder or matching recording",
                               hint="pass recordings, folders of recordings or a quoted glob")
         for p in paths:
+            if p.is_file() and p.suffix not in RECORDING_SUFFIXES and not recording_kind(p):
+                if skipped is not None:
+                    skipped.append(p)
+                continue
             if p.is_dir() and not (p / "metadata.yaml").exists() and not split_parts(p):
                 found += sorted(c for c in p.iterdir()
                                 if (c.is_file() and c.suffix in RECORDING_SUFFIXES)
@@ -217,8 +230,9 @@ def _complete(row: dict[str, Any]) -> dict[str, Any]:
 
 
 def plan_tasks(inputs: Iterable[str | Path], out: Path, opts: Any, *, fail_on: str = "fail",
-               csv: bool = False, force: bool = False) -> list[Task]:
-    paths = discover(inputs)
+               csv: bool = False, force: bool = False,
+               skipped: list[Path] | None = None) -> list[Task]:
+    paths = discover(inputs, skipped)
     setup = setup_hash(opts)
     one = replace(opts, jobs=1)
     return [Task(p, out / n, one, setup, fail_on, csv, force)

@@ -119,6 +119,12 @@ def test_a_folder_of_separate_bags_is_a_fleet_and_split_parts_are_one_recording(
     assert "--out" in capsys.readouterr().err
     # the fleet's --out folder handed to a command that reads one result: say which to pass
     (fleet / "labels.csv").write_text("t_start_ns,t_end_ns,condition\n")
+    # a glob (or the shell's logs/*) also catches side files: left out, and said so
+    skipped: list[Path] = []
+    assert [p.name for p in discover([str(fleet / "*")], skipped)] == ["aisle.bag", "dock.bag"]
+    assert [p.name for p in skipped] == ["labels.csv"]
+    assert main(["analyze", str(fleet / "*"), "--out", str(out)]) in (0, 1)
+    assert "left out 1 file(s) that are not recordings: labels.csv" in capsys.readouterr().err
     for cmd in (["report", str(out)], ["explain", str(out), "--frame", "1"],
                 ["eval", str(out), "--labels", str(fleet / "labels.csv")]):
         assert main(cmd) == 2

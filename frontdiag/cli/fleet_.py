@@ -40,10 +40,16 @@ def run_fleet(logs: list[Path], out: Path | None, opts: Any, *, jobs: int,
         from frontdiag.parallel import FLEET_PRELOAD, prestart
 
         prestart(FLEET_PRELOAD)  # the workers' imports overlap the planning (content hashes)
-    tasks = fleet.plan_tasks(logs, out, opts, fail_on=fail_on, csv=csv, force=force)
+    skipped: list[Path] = []
+    tasks = fleet.plan_tasks(logs, out, opts, fail_on=fail_on, csv=csv, force=force,
+                             skipped=skipped)
     out = prepare_out_dir(out, [t.path for t in tasks])
     err = make_console(stderr=True)
     show = not quiet and not as_json
+    if skipped and not quiet:
+        names = ", ".join(p.name for p in skipped[:3]) + (", ..." if len(skipped) > 3 else "")
+        err.print(f"[dim]left out {len(skipped)} file(s) that are not recordings: "
+                  f"{escape(names)}[/]", highlight=False)
     with Progress(TextColumn("[bold]fleet[/]"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("recordings"), TimeElapsedColumn(), console=err,
                   transient=True, disable=not show) as bar:

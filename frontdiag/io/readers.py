@@ -604,7 +604,7 @@ def plan(path: Path) -> _Plan:
                              hint="pass the recording file itself")
     if path.stat().st_size == 0:
         raise RecordingError(path, "file is empty")
-    kind = _kind(path)
+    kind = recording_kind(path)
     if kind == "mcap":
         return _Plan(MCAP_BACKEND if _mcap_profile(path) in ("ros2", "") else "mcap", [path],
                      "mcap")
@@ -624,7 +624,8 @@ def _folder_kinds(path: Path) -> dict[str, list[Path]]:
     bag folders inside it under ``folder``."""
     kinds: dict[str, list[Path]] = {}
     for f in sorted(path.iterdir(), key=_natural):
-        kind = _kind(f) if f.is_file() else "folder" if (f / "metadata.yaml").exists() else None
+        kind = (recording_kind(f) if f.is_file()
+                else "folder" if (f / "metadata.yaml").exists() else None)
         if kind:
             kinds.setdefault(kind, []).append(f)
     return kinds
@@ -656,7 +657,7 @@ def split_parts(path: Path, kinds: dict[str, list[Path]] | None = None) -> bool:
     return len(names) == 1 and numbers == list(range(numbers[0], numbers[0] + len(numbers)))
 
 
-def _kind(path: Path) -> str | None:
+def recording_kind(path: Path) -> str | None:
     """``mcap``, ``bag`` or ``sqlite`` by the file's first bytes (its name is not trusted)."""
     try:
         head = _magic(path, 16)
