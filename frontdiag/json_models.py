@@ -140,6 +140,8 @@ class ClauseDoc(_Doc):
     test: str
     holds: bool
     rules_out: str | None
+    in_table: bool = True
+    """False where the table was written before this metric existed (re-run analyze)."""
 
 
 class RuleOnRow(_Doc):

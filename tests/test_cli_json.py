@@ -65,6 +65,32 @@ def test_explain_json_validates_and_reads_both_status_and_verdict(
     assert doc["frame_range"] == {"first": 0, "last": 5}
 
 
+def test_explain_says_when_a_metric_is_missing_from_an_older_table(
+        result_dir: tuple[Path, Path], tmp_path: Path,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """A table written before a rule's metric existed: the clause says so and how to get it,
+    in the text and in the JSON, instead of printing the value as None."""
+    import shutil
+
+    import pandas as pd
+
+    from frontdiag.cli import main
+
+    _, out = result_dir
+    old = tmp_path / "old"
+    shutil.copytree(out, old)
+    table = pd.read_parquet(old / "frames.parquet")
+    table.drop(columns=["lit_share"]).to_parquet(old / "frames.parquet")
+    code, doc = run_json(["explain", str(old), "--frame", "4", "--json"], capsys)
+    validate("explain", doc)
+    clause = next(c for r in doc["rules"] if r["id"] == "FD-DET-003" for c in r["clauses"])
+    assert clause["metric"] == "lit_share" and clause["in_table"] is False
+    assert not clause["holds"]
+    assert main(["explain", str(old), "--frame", "4"]) == 0
+    assert "lit_share not in this table (written by an older frontdiag)" in \
+        capsys.readouterr().out
+
+
 def test_rules_and_scenarios_json_validate(capsys: pytest.CaptureFixture[str]) -> None:
     code, doc = run_json(["rules", "list", "--json"], capsys)
     validate("rules-list", doc)

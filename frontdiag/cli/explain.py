@@ -210,7 +210,8 @@ def build_explanation(result_dir: Path, frame: int | None, t: float | None,
         for c in e.clauses:
             clauses.append({"metric": c.metric, "value": _plain(c.value), "unit": c.unit,
                             "test": c.test, "holds": bool(c.holds),
-                            "rules_out": c.rules_out if c.holds else None})
+                            "rules_out": c.rules_out if c.holds else None,
+                            "in_table": c.metric in result.table.columns})
             thresholds.setdefault(c.metric, []).append(f"{r.id} {c.test}")
         if r.check:
             for name, metric in CHECKS[r.check].param_metrics.items():
@@ -282,6 +283,11 @@ def render(data: dict[str, Any]) -> None:
         for c in r["clauses"]:
             mark = "✔" if c["holds"] else "✘"
             out = f"  → rules out {c['rules_out']}" if c["rules_out"] else ""
+            if not c.get("in_table", True):
+                con.print(f"  {mark} {c['metric']} not in this table (written by an older "
+                          f"frontdiag): re-run `frontdiag analyze` to read it; test "
+                          f"{escape(c['test'])}")
+                continue
             con.print(f"  {mark} {c['metric']} = {_fmt(c['value'])} {c['unit']}; test "
                       f"{escape(c['test'])}{out}")
         for line in r["check"]:

@@ -36,7 +36,7 @@ _ENCODINGS: dict[str, tuple[int, int, int | None]] = {
     "bayer_gbrg8": (1, 1, cv2.COLOR_BayerGR2GRAY),
     "bayer_grbg8": (1, 1, cv2.COLOR_BayerGB2GRAY),
     # packed 4:2:2 (two bytes a pixel): "yuv422" is UYVY (ROS 1 and 2), "yuv422_yuy2" YUYV
-    # (ROS 2); grey is the luma byte of each pixel
+    # (ROS 2), and newer ROS 2 releases name them "uyvy" and "yuyv"; grey is each pixel's luma
     "yuv422": (2, 1, cv2.COLOR_YUV2GRAY_UYVY),
     "uyvy": (2, 1, cv2.COLOR_YUV2GRAY_UYVY),
     "yuv422_yuy2": (2, 1, cv2.COLOR_YUV2GRAY_YUY2),
