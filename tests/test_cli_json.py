@@ -82,6 +82,7 @@ def test_explain_says_when_a_metric_is_missing_from_an_older_table(
     table = pd.read_parquet(old / "frames.parquet")
     table.drop(columns=["lit_share"]).to_parquet(old / "frames.parquet")
     code, doc = run_json(["explain", str(old), "--frame", "4", "--json"], capsys)
+    assert code == 0
     validate("explain", doc)
     clause = next(c for r in doc["rules"] if r["id"] == "FD-DET-003" for c in r["clauses"])
     assert clause["metric"] == "lit_share" and clause["in_table"] is False
