@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -129,6 +129,56 @@ def resolve_intrinsics(rec: Recording, choice: TopicChoice, opts: AnalysisOption
     return None
 
 
+def first_image_size(rec: Recording, choice: TopicChoice) -> tuple[int, int] | None:
+    """(width, height) of the camera topic's first image, or None when it cannot be read (the
+    run then reports that frame itself)."""
+    assert choice.camera is not None
+    for raw in rec.messages([choice.camera]):
+        try:
+            msg = rec.deserialize(raw)
+            if raw.msgtype.endswith("CompressedImage"):
+                import cv2
+
+                img = cv2.imdecode(np.asarray(msg.data, np.uint8), cv2.IMREAD_UNCHANGED)
+                return None if img is None else (int(img.shape[1]), int(img.shape[0]))
+            return int(msg.width), int(msg.height)
+        except Exception:
+            return None
+    return None
+
+
+def fit_to_images(intr: Intrinsics, size: tuple[int, int] | None,
+                  notes: list[str]) -> Intrinsics:
+    """The calibration for images of ``size``: K scaled where the images are the calibrated
+    view resized (or binned), the same aspect ratio within 1 %; as it is, with a note, where
+    they are another view (a crop or region of interest), which K does not describe.
+
+    A calibration describes the image size it was made at; a resize node or binning that
+    passes the CameraInfo on unchanged leaves K for the full view, and the principal point then
+    lies far from the images' centre, which biases every E, parallax and rotation reading.
+    Resizing by s maps a pixel centre x to (x + 0.5) s - 0.5, so fx' = s fx and
+    cx' = (cx + 0.5) s - 0.5; the distortion coefficients act on normalised coordinates and
+    stay as they are.
+    """
+    if size is None or (size[0], size[1]) == (intr.width, intr.height):
+        return intr
+    w, h = size
+    sx, sy = w / intr.width, h / intr.height
+    if abs(sx - sy) > 0.01 * max(sx, sy):
+        notes.append(f"{intr.source} is for {intr.width}x{intr.height} images but the camera's "
+                     f"are {w}x{h}, another aspect ratio (a crop or region of interest): K is "
+                     f"used as it is and the geometry readings are suspect; {HOW_TO_PASS_K} "
+                     "for these images")
+        return intr
+    K = np.array(intr.K, dtype=np.float64)
+    K[0, 0], K[0, 1], K[1, 1] = K[0, 0] * sx, K[0, 1] * sx, K[1, 1] * sy
+    K[0, 2], K[1, 2] = (K[0, 2] + 0.5) * sx - 0.5, (K[1, 2] + 0.5) * sy - 0.5
+    notes.append(f"{intr.source} is for {intr.width}x{intr.height} images, the camera's are "
+                 f"{w}x{h}: K scaled by {sx:.4g} (the same view resized)")
+    return replace(intr, K=K, width=w, height=h,
+                   source=f"{intr.source}, scaled to {w}x{h}")
+
+
 def _expected(count: int | None, opts: AnalysisOptions, rec: Recording) -> int | None:
     if count is None:
         return opts.max_frames
@@ -208,6 +258,8 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
             raise
         notes.extend(choice.notes)
         intr = resolve_intrinsics(rec, choice, opts, notes) if choice.camera else None
+        if intr is not None and intr.width > 0 and intr.height > 0:
+            intr = fit_to_images(intr, first_image_size(rec, choice), notes)
         if choice.camera and intr is None:
             notes.append(f"no intrinsics: E, parallax, rotation and pose information are not "
                          f"computed; {HOW_TO_PASS_K}")

@@ -377,3 +377,47 @@ def test_stride_past_a_tracking_rate_is_named_not_read_as_repetition(
     assert share["1"] > 10 and share["6"] == 0
     assert not any("FD-REP-001" in n for n in full["notes"])
     assert any("FD-REP-001" in n and "0.34 s" in n for n in wide["notes"])
+
+
+def _recording_with_info(path: Path, K_info: np.ndarray, w_info: int, h_info: int) -> Path:
+    from recording_factory import DT, H, W
+
+    from frontdiag.io.writer import RecordingWriter, camera_info_msg
+
+    with RecordingWriter(path, "mcap") as w:
+        for i in range(6):
+            t = T0 + i * DT
+            w.write("/cam/image_raw", "sensor_msgs/msg/Image",
+                    image_msg(frame(i, 0, shift=2), "mono8", t), t)
+            w.write("/cam/camera_info", "sensor_msgs/msg/CameraInfo",
+                    camera_info_msg(K_info, w_info, h_info, t), t)
+    assert (W, H) == (160, 120)
+    return path
+
+
+def test_a_camera_info_for_another_image_size_is_scaled_or_flagged(tmp_path: Path) -> None:
+    """A resize node (or binning) that passes the full-size CameraInfo on: K describes 320x240
+    while the images are 160x120. Same aspect ratio: K is scaled to the images (pixel centres:
+    cx' = (cx + 0.5) s - 0.5) and a note says so; the table equals the one with the images' own
+    K. Another aspect ratio (a crop) cannot be scaled: K is kept, with a note."""
+    from recording_factory import K
+
+    from frontdiag.api import analyze
+
+    full = K.copy()
+    full[0, 0], full[1, 1] = 2 * K[0, 0], 2 * K[1, 1]
+    full[0, 2], full[1, 2] = (K[0, 2] + 0.5) * 2 - 0.5, (K[1, 2] + 0.5) * 2 - 0.5
+    own = analyze(_recording_with_info(tmp_path / "own.mcap", K, 160, 120))
+    big = analyze(_recording_with_info(tmp_path / "big.mcap", full, 320, 240))
+    man = big.attrs["manifest"]
+    assert np.allclose(man["intrinsics"]["K"], K)
+    assert (man["intrinsics"]["width"], man["intrinsics"]["height"]) == (160, 120)
+    assert any("is for 320x240 images, the camera's are 160x120: K scaled by 0.5" in n
+               for n in man["notes"])
+    cols = [c for c in own.columns if not c.startswith("ms_")]
+    pd.testing.assert_frame_equal(own[cols], big[cols])
+
+    crop = analyze(_recording_with_info(tmp_path / "crop.mcap", K, 160, 160))
+    man = crop.attrs["manifest"]
+    assert np.allclose(man["intrinsics"]["K"], K)
+    assert any("another aspect ratio" in n and "--intrinsics" in n for n in man["notes"])
