@@ -78,6 +78,7 @@ def inspect_recording(path: Path | str, gap_factor: float = 3.0) -> RecordingRep
                     stamps[raw.topic].append(-1)
         fault = rec.fault
         backend = rec.backend
+        calibration = _calibration_notes(rec, infos)
     oddities: list[str] = []
     if fault is not None:
         oddities.append(f"damaged: {fault.message}")
@@ -118,6 +119,7 @@ def inspect_recording(path: Path | str, gap_factor: float = 3.0) -> RecordingRep
                         for n in choice.notes)
     except TopicError as exc:
         choice_error = str(exc)
+    oddities.extend(calibration)
     duration = (end - start) / 1e9 if start is not None and end is not None else None
     return RecordingReport(path, backend, duration, start, end, reports, choice, choice_error,
                            oddities, None if fault is None else fault.message)
@@ -134,3 +136,30 @@ def _detail(msg: Any, msgtype: str) -> str:
     if msgtype.endswith("LaserScan"):
         return f"{len(msg.ranges)} ranges"
     return ""
+
+
+def _calibration_notes(rec: Any, infos: list[Any]) -> list[str]:
+    """What analyze would say of the camera's CameraInfo: K unset, or made for another image
+    size (scaled, or unusable for a crop); nothing when there is no camera or no CameraInfo."""
+    from frontdiag.api import (
+        AnalysisOptions,
+        first_image_size,
+        fit_to_images,
+        resolve_intrinsics,
+    )
+    from frontdiag.errors import FrontdiagError
+
+    try:
+        choice = choose_topics(infos)
+    except TopicError:
+        return []
+    if not choice.camera or not choice.camera_info:
+        return []
+    notes: list[str] = []
+    try:
+        intr = resolve_intrinsics(rec, choice, AnalysisOptions(), notes)
+    except FrontdiagError as exc:  # a calibration no model can use: analyze stops on it
+        return [str(exc)]
+    if intr is not None and intr.width > 0 and intr.height > 0:
+        fit_to_images(intr, first_image_size(rec, choice), notes)
+    return notes

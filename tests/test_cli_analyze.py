@@ -421,3 +421,10 @@ def test_a_camera_info_for_another_image_size_is_scaled_or_flagged(tmp_path: Pat
     man = crop.attrs["manifest"]
     assert np.allclose(man["intrinsics"]["K"], K)
     assert any("another aspect ratio" in n and "--intrinsics" in n for n in man["notes"])
+    # `frontdiag info` says the same before anything is analysed
+    from frontdiag.inspect import inspect_recording
+
+    assert any("K scaled by 0.5" in o for o in inspect_recording(tmp_path / "big.mcap").oddities)
+    assert any("another aspect ratio" in o
+               for o in inspect_recording(tmp_path / "crop.mcap").oddities)
+    assert not inspect_recording(tmp_path / "own.mcap").oddities
