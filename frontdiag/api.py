@@ -27,6 +27,7 @@ from frontdiag.errors import (
 from frontdiag.io.camera_info import (
     HOW_TO_PASS_K,
     from_camera_info,
+    is_rectified_topic,
     load_camera_info_yaml,
     parse_intrinsics,
 )
@@ -122,7 +123,8 @@ def resolve_intrinsics(rec: Recording, choice: TopicChoice, opts: AnalysisOption
         except Exception as exc:
             notes.append(f"CameraInfo on {choice.camera_info} undecodable ({exc})")
             return None
-        from_rec = from_camera_info(msg, choice.camera_info, notes)
+        from_rec = from_camera_info(msg, choice.camera_info, notes,
+                                    rectified=is_rectified_topic(choice.camera or ""))
         if from_rec is None:
             notes.append(f"CameraInfo on {choice.camera_info} has no K (all zeros)")
         return from_rec

@@ -428,3 +428,44 @@ def test_a_camera_info_for_another_image_size_is_scaled_or_flagged(tmp_path: Pat
     assert any("another aspect ratio" in o
                for o in inspect_recording(tmp_path / "crop.mcap").oddities)
     assert not inspect_recording(tmp_path / "own.mcap").oddities
+
+
+def test_rectified_images_are_read_with_p_not_k_and_d(tmp_path: Path) -> None:
+    """image_rect topics carry images already rectified; their intrinsics are P's left 3x3 and
+    no distortion (sensor_msgs/CameraInfo), while K and D describe the raw images. The raw
+    topic of the same camera keeps K and D."""
+    from recording_factory import DT, K
+
+    from frontdiag.api import analyze
+    from frontdiag.io.camera_info import is_rectified_topic
+    from frontdiag.io.writer import RecordingWriter, camera_info_msg
+
+    P = np.array([[110.0, 0.0, 78.0, 0.0], [0.0, 110.0, 61.0, 0.0], [0.0, 0.0, 1.0, 0.0]])
+    D = np.array([-0.2, 0.05, 0.0, 0.0, 0.0])
+
+    def write(path: Path, topic: str, p: np.ndarray) -> Path:
+        with RecordingWriter(path, "mcap") as w:
+            for i in range(6):
+                t = T0 + i * DT
+                w.write(topic, "sensor_msgs/msg/Image",
+                        image_msg(frame(i, 0, shift=2), "mono8", t), t)
+                info = camera_info_msg(K, 160, 120, t, D=D)
+                info["p"] = p.reshape(-1)
+                w.write("/stereo/left/camera_info", "sensor_msgs/msg/CameraInfo", info, t)
+        return path
+
+    rect = analyze(write(tmp_path / "rect.mcap", "/stereo/left/image_rect", P))
+    intr = rect.attrs["manifest"]["intrinsics"]
+    assert np.allclose(intr["K"], P[:, :3]) and intr["model"] == "none" and intr["D"] == []
+    assert any("the images are rectified, so P's intrinsics are used" in n
+               for n in rect.attrs["manifest"]["notes"])
+    raw = analyze(write(tmp_path / "raw.mcap", "/stereo/left/image_raw", P))
+    intr = raw.attrs["manifest"]["intrinsics"]
+    assert np.allclose(intr["K"], K) and np.allclose(intr["D"], D)
+    unset = analyze(write(tmp_path / "unset.mcap", "/stereo/left/image_rect", np.zeros((3, 4))))
+    assert np.allclose(unset.attrs["manifest"]["intrinsics"]["K"], K)
+    assert any("P is unset; K and D are used" in n for n in unset.attrs["manifest"]["notes"])
+    assert is_rectified_topic("/zed/zed_node/left/image_rect_color/compressed")
+    assert is_rectified_topic("/camera/infra1/image_rect_raw")
+    assert not is_rectified_topic("/camera/color/image_raw")
+    assert not is_rectified_topic("/direct/image")

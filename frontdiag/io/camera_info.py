@@ -25,14 +25,42 @@ def _field(msg: Any, name: str) -> Any:
     return getattr(msg, name.upper())
 
 
-def from_camera_info(msg: Any, topic: str, notes: list[str] | None = None) -> Intrinsics | None:
+def is_rectified_topic(topic: str) -> bool:
+    """Whether an image topic's name says its images are rectified: image_pipeline's
+    ``image_rect`` / ``image_rect_color``, RealSense's ``image_rect_raw``, ZED's
+    ``image_rect_color`` / ``image_rect_gray`` (also under ``/compressed``)."""
+    return any(part.startswith("image_rect") for part in topic.split("/"))
+
+
+def from_camera_info(msg: Any, topic: str, notes: list[str] | None = None,
+                     rectified: bool = False) -> Intrinsics | None:
     """Intrinsics from a CameraInfo message; None when K is unset (all zeros).
+
+    ``rectified``: the images are already rectified (:func:`is_rectified_topic`). CameraInfo's
+    K and D describe the raw images; the rectified ones are described by the projection
+    matrix P, whose left 3x3 is their intrinsic matrix, with no distortion (REP 104 /
+    sensor_msgs/CameraInfo). Undistorting rectified images with D would bend them again. P is
+    used where it is set (fx, fy > 0), with a note; otherwise K and D, with a note.
 
     Raises ConfigError naming the topic and field for a calibration no camera model can use
     (NaN or infinite values, a distortion vector of the wrong length, an unknown model with
     non-zero coefficients).
     """
     where = f"CameraInfo on {topic}"
+    if rectified:
+        try:
+            P = np.asarray(_field(msg, "p"), dtype=np.float64).reshape(3, 4)
+        except (ValueError, TypeError):
+            P = np.zeros((3, 4))
+        if np.all(np.isfinite(P)) and P[0, 0] > 0 and P[1, 1] > 0:
+            if notes is not None:
+                notes.append(f"{where}: the images are rectified, so P's intrinsics are used "
+                             "(no distortion), not K and D, which describe the raw images")
+            return checked(Intrinsics(K=P[:, :3].copy(), D=np.zeros(0), model="none",
+                                      width=int(msg.width), height=int(msg.height),
+                                      source=f"{where} (P)"), notes)
+        if notes is not None:
+            notes.append(f"{where}: the images are rectified but P is unset; K and D are used")
     try:
         K = np.asarray(_field(msg, "k"), dtype=np.float64).reshape(3, 3)
         D = np.asarray(_field(msg, "d"), dtype=np.float64).reshape(-1)
