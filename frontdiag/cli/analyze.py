@@ -131,7 +131,7 @@ def analyze_cmd(
     scheduler: str | None = typer.Option(None, "--scheduler",
                                          help="Fleet on Dask: tcp://HOST:PORT of a running "
                                               "scheduler, or 'local' for a LocalCluster of "
-                                              "--jobs workers (needs frontdiag[fleet])."),
+                                              "--jobs workers (needs frontdiag\\[fleet])."),
     quiet: bool = typer.Option(False, "--quiet", "-q",
                                help="No progress bar or table; a failed gate's reasons still go "
                                     "to stderr."),
