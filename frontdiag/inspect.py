@@ -12,6 +12,7 @@ from frontdiag.errors import TopicError
 from frontdiag.io.images import IMAGE_TYPES
 from frontdiag.io.readers import open_recording
 from frontdiag.io.topics import LIDAR_TYPES, TopicChoice, choose_topics
+from frontdiag.lidar.livox import LIVOX_TYPES, header_stamp, livox_point_count
 
 SENSOR_TYPES = (*IMAGE_TYPES, *LIDAR_TYPES)
 
@@ -65,11 +66,18 @@ def inspect_recording(path: Path | str, gap_factor: float = 3.0) -> RecordingRep
         sensor_topics = {t.topic for t in infos if t.msgtype in SENSOR_TYPES}
         stamps: dict[str, list[int]] = {t: [] for t in sensor_topics}
         detail: dict[str, str] = {}
+        encodings = {t.topic: t.encoding for t in infos}
         for raw in rec.messages([t.topic for t in infos]):
             times[raw.topic].append(raw.log_ns)
             if raw.topic in sensor_topics:
                 try:
-                    msg = rec.deserialize(raw)
+                    if raw.msgtype in LIVOX_TYPES:  # its header, without 10^4 point objects
+                        enc = encodings.get(raw.topic) or "cdr"
+                        msg = header_stamp(raw.data, enc)
+                        if raw.topic not in detail:
+                            detail[raw.topic] = f"Livox, {livox_point_count(raw.data, enc)} pts"
+                    else:
+                        msg = rec.deserialize(raw)
                     st = msg.header.stamp
                     stamps[raw.topic].append(int(st.sec) * 1_000_000_000 + int(st.nanosec))
                     if raw.topic not in detail:

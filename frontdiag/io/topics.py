@@ -9,7 +9,10 @@ from frontdiag.io.camera_info import CAMERA_INFO_TYPE, camera_info_topic_for
 from frontdiag.io.images import IMAGE_TYPES
 from frontdiag.io.readers import TopicInfo
 
-LIDAR_TYPES = ("sensor_msgs/msg/PointCloud2", "sensor_msgs/msg/LaserScan")
+LIDAR_TYPES = ("sensor_msgs/msg/PointCloud2", "sensor_msgs/msg/LaserScan",
+               # Livox drivers' own scan message (frontdiag/lidar/livox.py)
+               "livox_ros_driver/msg/CustomMsg", "livox_ros_driver2/msg/CustomMsg",
+               "livox_interfaces/msg/CustomMsg")
 ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
 _NOT_ODOMETRY = ("ground_truth", "groundtruth", "/gt", "truth", "mocap", "vicon")
 # image topics that carry range, not intensity (RGB-D and stereo drivers publish them beside the

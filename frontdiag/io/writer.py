@@ -36,12 +36,16 @@ _TS_ROS2: Typestore | None = None
 def typestore(ros_version: int) -> Typestore:
     """Shared typestores (building one costs ~50 ms)."""
     global _TS_ROS1, _TS_ROS2
+    from frontdiag.lidar.livox import register_types
+
     if ros_version == 1:
         if _TS_ROS1 is None:
             _TS_ROS1 = get_typestore(Stores.ROS1_NOETIC)
+            register_types(_TS_ROS1, 1)
         return _TS_ROS1
     if _TS_ROS2 is None:
         _TS_ROS2 = get_typestore(Stores.ROS2_HUMBLE)
+        register_types(_TS_ROS2, 2)
     return _TS_ROS2
 
 
