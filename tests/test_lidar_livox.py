@@ -65,6 +65,19 @@ def test_custom_msg_bytes_read_as_rosbags_deserialises_them(ros: int, little: bo
     assert scan.t_ns == T_NS and scan.index == 7 and scan.frame_id == frame_id
 
 
+def test_later_returns_of_a_multi_return_pulse_are_dropped() -> None:
+    """tag bits 4-5: 0x00 and 0x10 kept (as FAST-LIO's preprocessing keeps), 0x20 and 0x30
+    (the other returns of the same pulse) dropped; the low bits (noise flags) do not matter."""
+    ts = typestore(2)
+    cols = _points(8)
+    cols["x"][:] = np.arange(1, 9)
+    cols["y"][:] = 1.0
+    cols["tag"] = np.array([0x00, 0x10, 0x20, 0x30, 0x01, 0x11, 0x21, 0x12], np.uint8)
+    data = ts.serialize_cdr(build_message(ts, TYPE, _msg(cols, T_NS, T_NS)), TYPE)
+    scan = decode_livox(data, "cdr", topic="/l", index=0, log_ns=0)
+    np.testing.assert_array_equal(scan.xyz[:, 0], [1, 2, 5, 6, 8])
+
+
 def test_a_truncated_custom_msg_names_the_field() -> None:
     ts = typestore(2)
     msg = build_message(ts, TYPE, _msg(_points(10), T_NS, T_NS))

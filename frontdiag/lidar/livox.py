@@ -19,8 +19,10 @@ a point takes 20 bytes (19 and one byte of padding before the next point's uint3
 uint64 ``timebase`` starts on a multiple of 8. Both are checked against rosbags' own
 deserialisation in the tests.
 
-Points at exactly (0, 0, 0) (no return) and non-finite ones are dropped. ``time_rel_s`` is
-``timebase + offset_time`` relative to the scan's stamp.
+Points at exactly (0, 0, 0) (no return) and non-finite ones are dropped, and so are the later
+returns of a multi-return pulse: ``tag`` bits 4-5 other than 0x00 or 0x10, the returns FAST-LIO's
+preprocessing keeps (Xu et al. 2022), so that one surface does not count twice. ``time_rel_s``
+is ``timebase + offset_time`` relative to the scan's stamp.
 """
 
 from __future__ import annotations
@@ -150,7 +152,9 @@ def decode_livox(data: bytes | memoryview, encoding: str, *, topic: str, index: 
     pts = np.ndarray(shape=(n,), dtype=_points_dtype(big), buffer=buf, offset=first,
                      strides=(stride,))
     x, y, z = (pts[k].astype(np.float64) for k in ("x", "y", "z"))
-    keep = np.isfinite(x) & np.isfinite(y) & np.isfinite(z) & ((x != 0) | (y != 0) | (z != 0))
+    ret = pts["tag"] & 0x30  # bits 4-5: which return of a multi-return pulse
+    keep = np.isfinite(x) & np.isfinite(y) & np.isfinite(z) & ((x != 0) | (y != 0) | (z != 0)) \
+        & ((ret == 0x00) | (ret == 0x10))
     xyz = np.stack([x[keep], y[keep], z[keep]], axis=1)
     t_rel = ((timebase - t_ns) + pts["offset_time"][keep].astype(np.float64)) * 1e-9
     return LidarScan(index=index, t_ns=t_ns, log_ns=int(log_ns), topic=topic, xyz=xyz,
