@@ -260,6 +260,19 @@ class EvalGate(_Doc):
     reasons: list[str]
 
 
+class RecordingScoreDoc(_Doc):
+    """One recording's scores in a fleet's `frontdiag eval --json`."""
+
+    recording: str
+    frames: int
+    labelled_frames: int
+    healthy_frames: int
+    false_alarms: int
+    false_alarm_rate: float | None
+    unknown_predicted: list[str]
+    conditions: list[ConditionScoreDoc]
+
+
 class EvalDoc(_Doc):
     """`frontdiag eval --json`."""
 
@@ -272,6 +285,10 @@ class EvalDoc(_Doc):
     unknown_predicted: list[str]
     conditions: list[ConditionScoreDoc]
     gate: EvalGate
+    recordings: list[RecordingScoreDoc] = []
+    """A fleet's folder: each scored recording's own report (the fields above are pooled)."""
+    not_scored: list[str] = []
+    """A fleet's folder: recordings left out, with why (no labels beside them, not analysed)."""
 
 
 DOCUMENTS: dict[str, type[BaseModel]] = {

@@ -125,11 +125,13 @@ def test_a_folder_of_separate_bags_is_a_fleet_and_split_parts_are_one_recording(
     assert [p.name for p in skipped] == ["labels.csv"]
     assert main(["analyze", str(fleet / "*"), "--out", str(out)]) in (0, 1)
     assert "left out 1 file(s) that are not recordings: labels.csv" in capsys.readouterr().err
-    for cmd in (["report", str(out)], ["explain", str(out), "--frame", "1"],
-                ["eval", str(out), "--labels", str(fleet / "labels.csv")]):
+    for cmd in (["report", str(out)], ["explain", str(out), "--frame", "1"]):
         assert main(cmd) == 2
         err = capsys.readouterr().err
         assert "fleet run's folder (2 recordings)" in err and str(out / "aisle") in err, cmd
+    # eval reads a fleet's folder itself (each recording against its own labels): none here
+    assert main(["eval", str(out)]) == 2
+    assert "no recording of this fleet has labels beside it" in capsys.readouterr().err
 
 
 def test_the_largest_recordings_are_handed_out_first(tmp_path: Path) -> None:
@@ -201,3 +203,52 @@ def test_ctrl_c_stops_the_fleet_and_keeps_what_was_done(
     assert doc["interrupted"] is False and code in (0, 1)
     assert [by[n]["status"] for n in ("r0", "r1", "r2")] == ["skipped", "ok", "ok"]
     assert by["r1"]["frames"] == 12
+
+
+def test_eval_of_a_fleet_scores_each_recording_against_its_labels_and_pools_them(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`frontdiag eval FLEET_OUT`: each recording against the labels beside it, pooled by
+    summing counts (a long recording weighs by its frames); recordings without labels are
+    listed, not scored. Every condition is scored on every recording, so a condition's false
+    alarms count all healthy frames of the fleet."""
+    import jsonschema
+
+    from frontdiag.scoring import pool, read_frames, read_labels, score
+
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    for i, n in enumerate((10, 14, 8)):
+        write_recording(logs / f"r{i}.mcap", "mcap", n=n, seed=i, shift=1 + i)
+    from recording_factory import DT, T0
+
+    (logs / "r0.mcap.labels.csv").write_text(
+        f"t_start_ns,t_end_ns,condition\n{T0},{T0 + 9 * DT},healthy\n")
+    (logs / "r1.mcap.labels.csv").write_text(
+        f"t_start_ns,t_end_ns,condition\n{T0 + DT},{T0 + 13 * DT},healthy\n"
+        f"{T0 + 5 * DT},{T0 + 7 * DT},exposure_step\n")
+    out = tmp_path / "out"
+    assert main(["analyze", str(logs), "--out", str(out)]) in (0, 1)
+    capsys.readouterr()
+    code = main(["eval", str(out), "--json"])
+    doc = json.loads(capsys.readouterr().out)
+    schema = json.loads((Path(__file__).resolve().parents[1] / "docs" / "schemas" /
+                         "eval.json").read_text())
+    jsonschema.Draft202012Validator(schema).validate(doc)
+    assert [r["recording"] for r in doc["recordings"]] == ["r0", "r1"]
+    assert doc["not_scored"] == ["r2 (no r2.mcap.labels.csv beside it)"]
+    singles = [score(read_frames(out / n), read_labels(logs / f"{n}.mcap.labels.csv"))
+               for n in ("r0", "r1")]
+    pooled = pool(singles)
+    assert doc["healthy_frames"] == pooled.healthy_frames == 10 + 13 - 3
+    assert doc["false_alarms"] == pooled.false_alarms
+    exp = next(c for c in doc["conditions"] if c["condition"] == "exposure_step")
+    assert exp["episodes"] == 1 and exp["healthy_frames"] == doc["healthy_frames"]
+    assert code == (1 if doc["gate"]["reasons"] else 0)
+    assert main(["eval", str(out), "--min-recall", "1.1"]) == 2  # a share is checked first
+    capsys.readouterr()
+    assert main(["eval", str(out), "--labels", str(logs / "r0.mcap.labels.csv")]) == 2
+    assert "each recording is scored against its own" in capsys.readouterr().err
+    assert main(["eval", str(out)]) in (0, 1)
+    text = capsys.readouterr().out
+    assert "against the labels of 2 recordings (pooled)" in text
+    assert "not scored: r2 (no r2.mcap.labels.csv beside it)" in text

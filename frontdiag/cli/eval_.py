@@ -50,6 +50,35 @@ def find_labels(target: Path, labels: Path | None) -> tuple[Path, Path | None]:
     return found, recording
 
 
+def fleet_reports(out: Path) -> tuple[list[tuple[str, Any]], list[str]]:
+    """Each finished recording of a fleet run's ``--out`` folder scored against the labels
+    beside the recording (``<recording>.labels.csv``): ``(name, report)`` pairs, and the names
+    left out with why (no labels, not analysed)."""
+    import pandas as pd
+
+    from frontdiag.conditions import CONDITIONS
+    from frontdiag.scoring import read_frames, read_labels, score
+    from frontdiag.sim.run import labels_path_for
+
+    summary = pd.read_parquet(out / "fleet_summary.parquet")
+    scored, left = [], []
+    for row in summary.itertuples(index=False):
+        name = str(row.recording)
+        folder = out / name
+        if not (folder / "frames.parquet").is_file():
+            left.append(f"{name} (not analysed: {row.status})")
+            continue
+        labels = labels_path_for(Path(str(row.path)))
+        if not labels.is_file():
+            left.append(f"{name} (no {labels.name} beside it)")
+            continue
+        # every condition on every recording, so that a condition's false alarms count all
+        # healthy frames of the fleet, not only those of recordings where it was labelled
+        scored.append((name, score(read_frames(folder), read_labels(labels),
+                                   conditions=CONDITIONS)))
+    return scored, left
+
+
 def accuracy_gate(report: Any, min_recall: float | None, min_precision: float | None,
                   max_false_alarm: float | None) -> list[str]:
     """Reasons the scores miss the requested gates (empty: passed). Recall is episode recall
@@ -103,7 +132,9 @@ def register(app: typer.Typer) -> None:
     @app.command("eval", epilog="Scoring rules: docs/simulate.md#scoring.")
     def eval_cmd(
         target: Path = typer.Argument(..., help="An `analyze --out` directory, a frames "
-                                      ".parquet/.csv, or a recording (analysed first)."),
+                                      ".parquet/.csv, a recording (analysed first), or a "
+                                      "fleet's --out folder (each recording against the "
+                                      "labels beside it, pooled)."),
         labels: Path = typer.Option(None, "--labels", "-l",
                                     help="Labels CSV (default: <recording>.labels.csv, the "
                                     "recording found from the result's manifest)."),
@@ -127,6 +158,8 @@ def register(app: typer.Typer) -> None:
           frontdiag eval results/                       # labels found via the manifest
 
           frontdiag eval run.mcap --min-recall 1 --max-false-alarm 0.01   # CI accuracy gate
+
+          frontdiag eval fleet/     # a fleet's --out: every recording with labels, pooled
         """
         import pandas as pd
 
@@ -138,21 +171,43 @@ def register(app: typer.Typer) -> None:
                 _share(value, name)
         if not target.exists():
             raise ConfigError(f"{target}: not found")
-        labels_file, _ = find_labels(target, labels)
-        label_table = read_labels(labels_file)  # checked before any analysis
-        if _is_recording(target):
-            result = _analyse(target, quiet or json_)
-            frames = normalise_frames(pd.DataFrame(result.table), source=str(target))
+        per_recording: list[tuple[str, Any]] = []
+        left: list[str] = []
+        if target.is_dir() and (target / "fleet_summary.parquet").is_file():
+            if labels is not None:
+                raise ConfigError(f"{target} is a fleet run's folder: each recording is scored "
+                                  "against its own <recording>.labels.csv",
+                                  hint="drop --labels, or pass one recording's folder with it")
+            from frontdiag.scoring import pool
+
+            per_recording, left = fleet_reports(target)
+            if not per_recording:
+                raise ConfigError(f"{target}: no recording of this fleet has labels beside it "
+                                  f"({'; '.join(left[:3])})",
+                                  hint="write <recording>.labels.csv beside each recording "
+                                  "(t_start_ns,t_end_ns,condition)")
+            report = pool(r for _, r in per_recording)
+            labels_name = f"the labels of {len(per_recording)} recordings (pooled)"
         else:
-            frames = read_frames(target)
-        report = score(frames, label_table)
+            labels_file, _ = find_labels(target, labels)
+            label_table = read_labels(labels_file)  # checked before any analysis
+            if _is_recording(target):
+                result = _analyse(target, quiet or json_)
+                frames = normalise_frames(pd.DataFrame(result.table), source=str(target))
+            else:
+                frames = read_frames(target)
+            report = score(frames, label_table)
+            labels_name = labels_file.name
         reasons = accuracy_gate(report, min_recall, min_precision, max_false_alarm)
         code = EXIT_GATE if reasons else EXIT_OK
         if json_:
             from frontdiag.json_models import EvalDoc, emit
 
-            typer.echo(emit(EvalDoc, {**report.as_dict(),
-                                      "gate": {"passed": not reasons, "reasons": reasons}}))
+            doc = {**report.as_dict(), "gate": {"passed": not reasons, "reasons": reasons}}
+            if per_recording or left:
+                doc["recordings"] = [{"recording": n, **r.as_dict()} for n, r in per_recording]
+                doc["not_scored"] = left
+            typer.echo(emit(EvalDoc, doc))
             return code
         from rich import box
         from rich.markup import escape
@@ -162,7 +217,7 @@ def register(app: typer.Typer) -> None:
 
         console = make_console()
         t = Table(title=f"frontdiag eval — {escape(str(target))} against "
-                  f"{escape(labels_file.name)}", box=box.SIMPLE_HEAD, pad_edge=False,
+                  f"{escape(labels_name)}", box=box.SIMPLE_HEAD, pad_edge=False,
                   caption="found: episodes with ≥ 50 % of frames flagged · frames: labelled "
                           "frames · FA: false alarms / healthy frames · each condition on the "
                           "rows of its sensor (registration_degeneracy: LiDAR, others: camera)")
@@ -170,6 +225,8 @@ def register(app: typer.Typer) -> None:
         for col in ("found", "frames", "flagged", "precision", "F1", "FA"):
             t.add_column(col, justify="right", no_wrap=True)
         for c in report.conditions:
+            if per_recording and not (c.episodes or c.frames_flagged):
+                continue  # a fleet scores every condition; show those that occur
             t.add_row(c.condition, f"{c.episodes_found}/{c.episodes}", str(c.frames_labelled),
                       str(c.frames_flagged), _fmt(c.precision), _fmt(c.f1),
                       f"{c.false_alarms}/{c.healthy_frames}")
@@ -178,6 +235,17 @@ def register(app: typer.Typer) -> None:
                       f"{report.healthy_frames} healthy; false alarms on healthy frames: "
                       f"{report.false_alarms} ({_fmt(report.false_alarm_rate, pct=True)})",
                       highlight=False)
+        if per_recording:
+            console.print("per recording (found/labelled episodes of all conditions; false "
+                          "alarms / healthy frames):", highlight=False)
+            for name, r in per_recording:
+                found = sum(c.episodes_found for c in r.conditions)
+                eps = sum(c.episodes for c in r.conditions)
+                console.print(f"  {escape(name)}: {found}/{eps} episodes, "
+                              f"{r.false_alarms}/{r.healthy_frames} false alarms",
+                              highlight=False)
+        if left:
+            console.print(f"[dim]not scored: {escape('; '.join(left))}[/]", highlight=False)
         if report.unknown_predicted:
             console.print(f"ignored unknown condition names: "
                           f"{', '.join(report.unknown_predicted)}", highlight=False)
