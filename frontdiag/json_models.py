@@ -260,30 +260,28 @@ class EvalGate(_Doc):
     reasons: list[str]
 
 
-class RecordingScoreDoc(_Doc):
+class ScoresDoc(_Doc):
+    """The scores of one recording or of a pooled set (``frontdiag.scoring.EvalReport``)."""
+
+    frames: int
+    labelled_frames: int
+    healthy_frames: int
+    false_alarms: int
+    false_alarm_rate: float | None
+    unknown_predicted: list[str]
+    conditions: list[ConditionScoreDoc]
+
+
+class RecordingScoreDoc(ScoresDoc):
     """One recording's scores in a fleet's `frontdiag eval --json`."""
 
     recording: str
-    frames: int
-    labelled_frames: int
-    healthy_frames: int
-    false_alarms: int
-    false_alarm_rate: float | None
-    unknown_predicted: list[str]
-    conditions: list[ConditionScoreDoc]
 
 
-class EvalDoc(_Doc):
+class EvalDoc(ScoresDoc):
     """`frontdiag eval --json`."""
 
     schema_: str = Field(alias="schema", default=schemas.EVAL_SCHEMA)
-    frames: int
-    labelled_frames: int
-    healthy_frames: int
-    false_alarms: int
-    false_alarm_rate: float | None
-    unknown_predicted: list[str]
-    conditions: list[ConditionScoreDoc]
     gate: EvalGate
     recordings: list[RecordingScoreDoc] = []
     """A fleet's folder: each scored recording's own report (the fields above are pooled)."""
