@@ -252,3 +252,26 @@ def test_eval_of_a_fleet_scores_each_recording_against_its_labels_and_pools_them
     text = capsys.readouterr().out
     assert "against the labels of 2 recordings (pooled)" in text
     assert "not scored: r2 (no r2.mcap.labels.csv beside it)" in text
+
+
+def test_report_of_a_fleet_writes_an_index_and_a_page_each(
+        logs: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`frontdiag report FLEET_OUT`: NAME/report.html for every finished recording and one
+    index page linking them, a row per recording (the bad one without a link); names are
+    HTML-escaped."""
+    odd = tmp_path / "odd"
+    odd.mkdir()
+    write_recording(odd / "a<b>&c.mcap", "mcap", n=8)
+    out = tmp_path / "out"
+    main(["analyze", str(logs), str(odd / "a<b>&c.mcap"), "--out", str(out)])
+    capsys.readouterr()
+    assert main(["report", str(out), "--no-thumbnails"]) == 0
+    assert "over 4 recordings" in capsys.readouterr().out
+    page = (out / "index.html").read_text()
+    for name in ("r0", "r1", "r2"):
+        assert (out / name / "report.html").stat().st_size > 10_000
+        assert f"<a href='{name}/report.html'>{name}</a>" in page
+    assert "<td>bad<br>" in page and "unknown container" in page  # listed, not linked
+    assert "a&lt;b&gt;&amp;c" in page and "a<b>" not in page
+    assert main(["report", str(out), "--target", "orin-nano"]) == 2
+    assert "fleet run's folder" in capsys.readouterr().err

@@ -26,6 +26,8 @@ Examples:
   frontdiag report results/ -o run.html --target orin-nano
 
   frontdiag report new/ --baseline old/ -o regression.html     # overlay an earlier run
+
+  frontdiag report fleet/       # a fleet's --out: fleet/index.html and NAME/report.html each
 """
 
 
@@ -35,7 +37,8 @@ def register(app: typer.Typer) -> None:
 
 def report_cmd(
     result_dir: Path = typer.Argument(..., metavar="RESULT_DIR",
-                                      help="The --out directory of `frontdiag analyze`."),
+                                      help="The --out directory of `frontdiag analyze` (of one "
+                                           "recording, or of a fleet)."),
     output: Path | None = typer.Option(None, "--output", "-o", metavar="FILE",
                                        help="HTML file to write [default: RESULT_DIR/report.html]."),
     baseline: Path | None = typer.Option(None, "--baseline", metavar="DIR",
@@ -57,6 +60,12 @@ def report_cmd(
 
     if fail_on not in ("warn", "fail", "never"):
         raise ConfigError(f"--fail-on {fail_on!r}: choose warn, fail or never")
+    if (result_dir / "fleet_summary.parquet").is_file():
+        if baseline is not None or target is not None:
+            raise ConfigError(f"{result_dir} is a fleet run's folder: --baseline and --target "
+                              "apply to one recording's result",
+                              hint=f"pass one recording's folder, e.g. {result_dir}/NAME")
+        return _fleet_report(result_dir, output, fail_on, no_thumbnails, quiet)
     for d, flag in ((result_dir, "RESULT_DIR"), (baseline, "--baseline")):
         if d is not None and not (d / "frames.parquet").is_file():
             from frontdiag.output import result_dir_hint
@@ -92,6 +101,48 @@ def report_cmd(
     out.write_text(page, encoding="utf-8")
     if not quiet:
         make_console().print(f"report: {escape(str(out))} ({len(page.encode()) / 1e6:.1f} MB)")
+    return EXIT_OK
+
+
+def _fleet_report(out_dir: Path, output: Path | None, fail_on: str, no_thumbnails: bool,
+                  quiet: bool) -> int:
+    """A fleet run's folder: each finished recording's own report (NAME/report.html) and one
+    index page over them (index.html, or --output)."""
+    import os
+
+    import pandas as pd
+    from rich.markup import escape
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+
+    from frontdiag.cli._console import make_console
+    from frontdiag.errors import EXIT_OK, ConfigError
+    from frontdiag.report.html import ReportInputs, build_html, fleet_index_html, load_run
+    from frontdiag.verdicts import gate
+
+    index = output if output is not None else out_dir / "index.html"
+    if not index.parent.is_dir():
+        raise ConfigError(f"--output {index}: folder {index.parent} does not exist")
+    if index.is_dir():
+        raise ConfigError(f"--output {index}: is a directory; name the HTML file")
+    summary = pd.read_parquet(out_dir / "fleet_summary.parquet")
+    names = [str(n) for n in summary["recording"] if (out_dir / str(n) / "frames.parquet").is_file()]
+    pages: dict[str, str] = {}
+    with Progress(TextColumn("[bold]report[/] {task.description}"), BarColumn(),
+                  MofNCompleteColumn(), TextColumn("recordings"),
+                  console=make_console(stderr=True), transient=True, disable=quiet) as bar:
+        task = bar.add_task(out_dir.name, total=len(names))
+        for name in names:
+            run = load_run(out_dir / name)
+            inputs = ReportInputs(run, None, thumbnails=not no_thumbnails)
+            inputs.gate = gate(run.verdicts, fail_on=fail_on)  # type: ignore[arg-type]
+            page = out_dir / name / "report.html"
+            page.write_text(build_html(inputs), encoding="utf-8")
+            pages[name] = Path(os.path.relpath(page, index.parent)).as_posix()
+            bar.advance(task)
+    index.write_text(fleet_index_html(out_dir, summary, pages), encoding="utf-8")
+    if not quiet:
+        make_console().print(f"report: {escape(str(index))} over {len(names)} recordings "
+                             f"(each one's page: {escape(str(out_dir))}/NAME/report.html)")
     return EXIT_OK
 
 

@@ -408,3 +408,44 @@ def build_html(inp: ReportInputs) -> str:
             f"<title>frontdiag report · {_e(name)}</title><style>{_CSS}</style>"
             f"<script type='application/json' id='frontdiag-meta'>{meta}</script>"
             f"<script>{get_plotlyjs()}</script></head><body><main>{body}</main></body></html>")
+
+
+def fleet_index_html(out: Path, summary: pd.DataFrame, pages: dict[str, str]) -> str:
+    """One page over a fleet run's ``--out`` folder: a row per recording (status, frames,
+    coverage, verdict counts, episodes by condition, gate), linking each recording's own
+    report (``pages``: recording name -> path of its page relative to the index)."""
+    from frontdiag import __version__
+
+    rows = []
+    for r in summary.itertuples(index=False):
+        name = str(r.recording)
+        by_cond = ""
+        ep_file = out / name / "episodes.parquet"
+        if ep_file.is_file():
+            counts = pd.read_parquet(ep_file, columns=["condition"])["condition"].value_counts()
+            by_cond = ", ".join(f"{_e(c)} {int(n)}" for c, n in counts.items())
+        link = (f"<a href='{_e(pages[name])}'>{_e(name)}</a>" if name in pages else _e(name))
+        gate = str(r.gate or "")
+        cls = "gate-pass" if gate == "passed" else "gate-fail" if gate else ""
+        c = pd.to_numeric(pd.Series([r.coverage]), errors="coerce").iloc[0]
+        cov = f"{100 * float(c):.0f} %" if pd.notna(c) else ""
+        err = f"<br><span class='meta'>{_e(r.error)}</span>" if str(r.error or "") else ""
+        rows.append(
+            f"<tr class='{cls}'><td>{link}{err}</td><td>{_e(r.status)}</td>"
+            f"<td class='num'>{_e(r.frames)}</td><td class='num'>{cov}</td>"
+            f"<td class='num'>{_e(r.ok)}</td><td class='num'>{_e(r.warn)}</td>"
+            f"<td class='num'>{_e(r.fail)}</td><td class='num'>{_e(r.episodes)}</td>"
+            f"<td>{by_cond}</td><td>{_e(gate)}</td></tr>")
+    failed = int((summary["gate"] == "failed").sum()) if "gate" in summary else 0
+    errors = int((summary["status"] == "error").sum()) if "status" in summary else 0
+    head = ("<tr><th>recording</th><th>status</th><th>frames</th><th>coverage</th><th>ok</th>"
+            "<th>warn</th><th>fail</th><th>episodes</th><th>episodes by condition</th>"
+            "<th>gate</th></tr>")
+    body = (f"<h1>frontdiag fleet · {_e(out.name)}</h1>"
+            f"<p class='meta'>{_e(out)} · {len(summary)} recordings, {failed} with a failed "
+            f"gate, {errors} not analysed · report by frontdiag {__version__}</p>"
+            f"<section><table>{head}{''.join(rows)}</table></section>")
+    return ("<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
+            "<meta name='viewport' content='width=device-width, initial-scale=1'>"
+            f"<title>frontdiag fleet · {_e(out.name)}</title><style>{_CSS}</style></head>"
+            f"<body><main>{body}</main></body></html>")
