@@ -125,7 +125,8 @@ def test_a_folder_of_separate_bags_is_a_fleet_and_split_parts_are_one_recording(
     assert [p.name for p in skipped] == ["labels.csv"]
     assert main(["analyze", str(fleet / "*"), "--out", str(out)]) in (0, 1)
     assert "left out 1 file(s) that are not recordings: labels.csv" in capsys.readouterr().err
-    for cmd in (["report", str(out)], ["explain", str(out), "--frame", "1"]):
+    for cmd in (["explain", str(out), "--frame", "1"], ["analyze", str(fleet / "aisle.bag"),
+                                                          "--baseline", str(out)]):
         assert main(cmd) == 2
         err = capsys.readouterr().err
         assert "fleet run's folder (2 recordings)" in err and str(out / "aisle") in err, cmd
@@ -275,3 +276,31 @@ def test_report_of_a_fleet_writes_an_index_and_a_page_each(
     assert "a&lt;b&gt;&amp;c" in page and "a<b>" not in page
     assert main(["report", str(out), "--target", "orin-nano"]) == 2
     assert "fleet run's folder" in capsys.readouterr().err
+
+
+def test_junit_of_a_fleet_has_one_suite_per_recording(logs: Path, tmp_path: Path) -> None:
+    """`analyze logs/ --out OUT --junit fleet.xml`: one test suite per recording, each the one
+    `--junit` writes for that recording alone; the recording that could not be analysed is a
+    suite with an error case; the totals are the suites' sums. The file is checked before
+    anything is analysed."""
+    import xml.etree.ElementTree as ET
+
+    out, xml = tmp_path / "out", tmp_path / "fleet.xml"
+    code = main(["analyze", str(logs), "--out", str(out), "--junit", str(xml), "-q"])
+    assert code == 2  # the bad recording
+    root = ET.parse(xml).getroot()
+    suites = {s.get("name"): s for s in root.findall("testsuite")}
+    assert set(suites) == {"bad", "r0", "r1", "r2"}
+    bad = suites["bad"].find("testcase/error")
+    assert bad is not None and "unknown container" in bad.get("message", "")
+    alone = tmp_path / "r0.xml"
+    main(["analyze", str(logs / "r0.mcap"), "--junit", str(alone), "-q"])
+    single = ET.parse(alone).getroot().find("testsuite")
+    assert single is not None
+    assert [c.get("name") for c in suites["r0"]] == [c.get("name") for c in single]
+    for k in ("tests", "failures", "errors", "skipped"):
+        assert int(root.get(k)) == sum(int(s.get(k)) for s in suites.values())
+    before = (logs / "r1.mcap").read_bytes()
+    assert main(["analyze", str(logs), "--out", str(tmp_path / "o2"), "--junit",
+                 str(logs / "r1.mcap"), "-q"]) == 2  # would overwrite an input
+    assert (logs / "r1.mcap").read_bytes() == before and not (tmp_path / "o2").exists()

@@ -121,7 +121,8 @@ def analyze_cmd(
     baseline: Path | None = typer.Option(None, "--baseline",
                                          help="Earlier result dir of the same recording: exit 1 "
                                               "on regressions."),
-    junit: Path | None = typer.Option(None, "--junit", help="Write JUnit XML (one case per rule)."),
+    junit: Path | None = typer.Option(None, "--junit", help="Write JUnit XML (one case per rule; "
+                                      "a fleet: one suite per recording)."),
     as_json: bool = typer.Option(False, "--json",
                                  help="Print a machine-readable summary on stdout."),
     jobs: int = typer.Option(1, "--jobs", "-j",
@@ -202,11 +203,12 @@ def analyze_cmd(
     if fleet:
         from frontdiag.cli.fleet_ import run_fleet
 
-        if baseline or junit or max_fraction:
-            raise ConfigError("--baseline, --junit and --max-fraction apply to one recording",
+        if baseline or max_fraction:
+            raise ConfigError("--baseline and --max-fraction apply to one recording",
                               hint="analyse that recording on its own to use them")
         return run_fleet(logs, out, opts, jobs=jobs, scheduler=scheduler, fail_on=fail_on,
-                         csv=(fmt == "csv"), force=force, as_json=as_json, quiet=quiet)
+                         csv=(fmt == "csv"), force=force, as_json=as_json, quiet=quiet,
+                         junit=junit)
     limits = None
     if max_fraction:
         from frontdiag.verdicts import parse_max_fraction

@@ -26,7 +26,7 @@ def is_fleet(logs: list[Path], scheduler: str | None) -> bool:
 
 def run_fleet(logs: list[Path], out: Path | None, opts: Any, *, jobs: int,
               scheduler: str | None, fail_on: str, csv: bool, force: bool, as_json: bool,
-              quiet: bool) -> int:
+              quiet: bool, junit: Path | None = None) -> int:
     from rich.markup import escape
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -43,6 +43,10 @@ def run_fleet(logs: list[Path], out: Path | None, opts: Any, *, jobs: int,
     skipped: list[Path] = []
     tasks = fleet.plan_tasks(logs, out, opts, fail_on=fail_on, csv=csv, force=force,
                              skipped=skipped)
+    if junit is not None:  # checked before anything is written or analysed
+        from frontdiag.output import check_output_file
+
+        check_output_file(junit, "--junit", [t.path for t in tasks])
     out = prepare_out_dir(out, [t.path for t in tasks])
     err = make_console(stderr=True)
     show = not quiet and not as_json
@@ -65,6 +69,11 @@ def run_fleet(logs: list[Path], out: Path | None, opts: Any, *, jobs: int,
         else:
             rows = fleet.run_local(tasks, jobs, on_row)
     path = fleet.write_summary(out, rows)
+    if junit is not None:
+        from frontdiag.output import guarded_write
+        from frontdiag.report.junit import write_fleet_junit
+
+        guarded_write(junit, lambda: write_fleet_junit(junit, out, rows, fail_on))
     code = fleet.worst_exit(rows)
     not_run = len(tasks) - len(rows)
     stopped = not_run > 0 or any(fleet.interrupted(r) for r in rows)

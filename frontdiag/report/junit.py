@@ -96,3 +96,48 @@ def write_junit(path: Path, result: Verdicts, gate_result: GateResult,
     ET.indent(tree)
     tree.write(path, encoding="utf-8", xml_declaration=True)
     return path
+
+
+def build_fleet_junit(out_dir: Path, rows: list[dict], fail_on: str) -> ET.ElementTree:
+    """One test suite per recording of a fleet run (named after its result folder), each as
+    :func:`build_junit` makes it from the recording's own result; a recording that could not
+    be analysed is a suite with one ``error`` case carrying the reason."""
+    from frontdiag.report.html import load_run
+    from frontdiag.verdicts.gate import gate
+
+    root = ET.Element("testsuites", name="frontdiag fleet")
+    totals = {"tests": 0, "failures": 0, "errors": 0, "skipped": 0}
+    for row in rows:
+        name = str(row["recording"])
+        folder = Path(out_dir) / name
+        if row.get("status") == "error" or not (folder / "frames.parquet").is_file():
+            suite = ET.SubElement(root, "testsuite", name=name, tests="1", failures="0",
+                                  errors="1", skipped="0")
+            case = ET.SubElement(suite, "testcase", classname="frontdiag.analysis",
+                                 name=f"analyse {row.get('path', name)}")
+            ET.SubElement(case, "error", message=str(row.get("error") or "not analysed"),
+                          type="analysis")
+            totals["tests"] += 1
+            totals["errors"] += 1
+            continue
+        run = load_run(folder)
+        one = build_junit(run.verdicts, gate(run.verdicts, fail_on=fail_on),  # type: ignore[arg-type]
+                          suite_name=name).getroot()
+        assert one is not None
+        for suite in one:
+            root.append(suite)
+            for k in totals:
+                totals[k] += int(suite.get(k, "0"))
+    for k, v in totals.items():
+        root.set(k, str(v))
+    return ET.ElementTree(root)
+
+
+def write_fleet_junit(path: Path, out_dir: Path, rows: list[dict], fail_on: str) -> Path:
+    """Write the fleet's JUnit XML (:func:`build_fleet_junit`) to ``path``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tree = build_fleet_junit(out_dir, rows, fail_on)
+    ET.indent(tree)
+    tree.write(path, encoding="utf-8", xml_declaration=True)
+    return path
