@@ -90,9 +90,12 @@ def build_junit(result: Verdicts, gate_result: GateResult,
 def write_junit(path: Path, result: Verdicts, gate_result: GateResult,
                 suite: str = "frontdiag") -> Path:
     """Write the JUnit XML report to `path`; ``suite`` names the test suite (the recording)."""
+    return _write(path, build_junit(result, gate_result, suite))
+
+
+def _write(path: Path, tree: ET.ElementTree) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tree = build_junit(result, gate_result, suite)
     ET.indent(tree)
     tree.write(path, encoding="utf-8", xml_declaration=True)
     return path
@@ -135,9 +138,4 @@ def build_fleet_junit(out_dir: Path, rows: list[dict], fail_on: str) -> ET.Eleme
 
 def write_fleet_junit(path: Path, out_dir: Path, rows: list[dict], fail_on: str) -> Path:
     """Write the fleet's JUnit XML (:func:`build_fleet_junit`) to ``path``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tree = build_fleet_junit(out_dir, rows, fail_on)
-    ET.indent(tree)
-    tree.write(path, encoding="utf-8", xml_declaration=True)
-    return path
+    return _write(path, build_fleet_junit(out_dir, rows, fail_on))
