@@ -379,7 +379,8 @@ def test_stride_past_a_tracking_rate_is_named_not_read_as_repetition(
     assert any("FD-REP-001" in n and "0.34 s" in n for n in wide["notes"])
 
 
-def _recording_with_info(path: Path, K_info: np.ndarray, w_info: int, h_info: int) -> Path:
+def _recording_with_info(path: Path, K_info: np.ndarray, w_info: int, h_info: int,
+                         **extra: object) -> Path:
     from recording_factory import DT, H, W
 
     from frontdiag.io.writer import RecordingWriter, camera_info_msg
@@ -390,7 +391,7 @@ def _recording_with_info(path: Path, K_info: np.ndarray, w_info: int, h_info: in
             w.write("/cam/image_raw", "sensor_msgs/msg/Image",
                     image_msg(frame(i, 0, shift=2), "mono8", t), t)
             w.write("/cam/camera_info", "sensor_msgs/msg/CameraInfo",
-                    camera_info_msg(K_info, w_info, h_info, t), t)
+                    {**camera_info_msg(K_info, w_info, h_info, t), **extra}, t)
     assert (W, H) == (160, 120)
     return path
 
@@ -469,3 +470,36 @@ def test_rectified_images_are_read_with_p_not_k_and_d(tmp_path: Path) -> None:
     assert is_rectified_topic("/camera/infra1/image_rect_raw")
     assert not is_rectified_topic("/camera/color/image_raw")
     assert not is_rectified_topic("/direct/image")
+
+
+def test_a_camera_info_region_of_interest_and_binning_move_k_to_the_images(
+        tmp_path: Path) -> None:
+    """CameraInfo keeps the full-resolution calibration and says which part of the sensor the
+    images show (roi, in full-resolution pixels) and how many pixels each sums (binning). A
+    160x120 crop at (80, 60) of a 320x240 sensor, and the 320x240 sensor binned 2x2, both give
+    the table of the images' own K."""
+    from recording_factory import K
+
+    from frontdiag.api import analyze
+
+    own = analyze(_recording_with_info(tmp_path / "own.mcap", K, 160, 120))
+    cols = [c for c in own.columns if not c.startswith("ms_")]
+    full = K.copy()
+    full[0, 2], full[1, 2] = K[0, 2] + 80, K[1, 2] + 60
+    roi = analyze(_recording_with_info(
+        tmp_path / "roi.mcap", full, 320, 240,
+        roi={"x_offset": 80, "y_offset": 60, "width": 160, "height": 120}))
+    man = roi.attrs["manifest"]
+    assert np.allclose(man["intrinsics"]["K"], K)
+    assert any("region of interest 160x120 at (80, 60)" in n for n in man["notes"])
+    pd.testing.assert_frame_equal(own[cols], roi[cols])
+    binned = K.copy()
+    binned[0, 0], binned[1, 1] = 2 * K[0, 0], 2 * K[1, 1]
+    binned[0, 2], binned[1, 2] = (K[0, 2] + 0.5) * 2 - 0.5, (K[1, 2] + 0.5) * 2 - 0.5
+    b2 = analyze(_recording_with_info(tmp_path / "bin.mcap", binned, 320, 240,
+                                      binning_x=2, binning_y=2))
+    man = b2.attrs["manifest"]
+    assert np.allclose(man["intrinsics"]["K"], K)
+    assert any("binning 2x2" in n for n in man["notes"])
+    assert not any("scaled" in n for n in man["notes"])  # binning explained the size
+    pd.testing.assert_frame_equal(own[cols], b2[cols])

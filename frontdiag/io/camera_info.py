@@ -34,6 +34,47 @@ def is_rectified_topic(topic: str) -> bool:
 
 def from_camera_info(msg: Any, topic: str, notes: list[str] | None = None,
                      rectified: bool = False) -> Intrinsics | None:
+    """Intrinsics from a CameraInfo message for the images it describes: those of
+    :func:`_full_resolution`, moved to the message's region of interest and binning.
+
+    CameraInfo holds the calibration at full sensor resolution; ``roi`` (x_offset, y_offset,
+    width, height, in full-resolution pixels; all zero for the full image) and ``binning_x`` /
+    ``binning_y`` (0 or 1 for none) say which part of the sensor the images show and how many
+    sensor pixels each image pixel sums (sensor_msgs/CameraInfo). A region of interest moves the
+    principal point by its offset; binning by b maps a full-resolution pixel centre x to
+    (x + 0.5) / b - 0.5 and divides the focal length by b. Distortion acts on normalised
+    coordinates and stays as it is.
+    """
+    intr = _full_resolution(msg, topic, notes, rectified)
+    if intr is None:
+        return None
+    roi = getattr(msg, "roi", None)
+    ox, oy = int(getattr(roi, "x_offset", 0) or 0), int(getattr(roi, "y_offset", 0) or 0)
+    rw, rh = int(getattr(roi, "width", 0) or 0), int(getattr(roi, "height", 0) or 0)
+    bx = max(int(getattr(msg, "binning_x", 0) or 0), 1)
+    by = max(int(getattr(msg, "binning_y", 0) or 0), 1)
+    use_roi = rw > 0 and rh > 0 and (ox, oy, rw, rh) != (0, 0, intr.width, intr.height)
+    if not use_roi and bx == 1 and by == 1:
+        return intr
+    K = np.array(intr.K, dtype=np.float64)
+    w, h = (rw, rh) if use_roi else (intr.width, intr.height)
+    what = []
+    if use_roi:
+        K[0, 2] -= ox
+        K[1, 2] -= oy
+        what.append(f"region of interest {rw}x{rh} at ({ox}, {oy})")
+    if bx > 1 or by > 1:
+        K[0, 0], K[0, 1], K[1, 1] = K[0, 0] / bx, K[0, 1] / bx, K[1, 1] / by
+        K[0, 2], K[1, 2] = (K[0, 2] + 0.5) / bx - 0.5, (K[1, 2] + 0.5) / by - 0.5
+        w, h = w // bx, h // by
+        what.append(f"binning {bx}x{by}")
+    if notes is not None:
+        notes.append(f"{intr.source}: K moved to its {' and '.join(what)} ({w}x{h} images)")
+    return replace(intr, K=K, width=w, height=h)
+
+
+def _full_resolution(msg: Any, topic: str, notes: list[str] | None = None,
+                     rectified: bool = False) -> Intrinsics | None:
     """Intrinsics from a CameraInfo message; None when K is unset (all zeros).
 
     ``rectified``: the images are already rectified (:func:`is_rectified_topic`). CameraInfo's
