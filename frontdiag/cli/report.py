@@ -116,6 +116,7 @@ def _fleet_report(out_dir: Path, output: Path | None, fail_on: str, no_thumbnail
 
     from frontdiag.cli._console import make_console
     from frontdiag.errors import EXIT_OK, ConfigError
+    from frontdiag.output import guarded_write
     from frontdiag.report.html import ReportInputs, build_html, fleet_index_html, load_run
     from frontdiag.verdicts import gate
 
@@ -136,10 +137,12 @@ def _fleet_report(out_dir: Path, output: Path | None, fail_on: str, no_thumbnail
             inputs = ReportInputs(run, None, thumbnails=not no_thumbnails)
             inputs.gate = gate(run.verdicts, fail_on=fail_on)  # type: ignore[arg-type]
             page = out_dir / name / "report.html"
-            page.write_text(build_html(inputs), encoding="utf-8")
+            html = build_html(inputs)
+            guarded_write(page, lambda p=page, h=html: p.write_text(h, encoding="utf-8"))
             pages[name] = Path(os.path.relpath(page, index.parent)).as_posix()
             bar.advance(task)
-    index.write_text(fleet_index_html(out_dir, summary, pages), encoding="utf-8")
+    text = fleet_index_html(out_dir, summary, pages)
+    guarded_write(index, lambda: index.write_text(text, encoding="utf-8"))
     if not quiet:
         make_console().print(f"report: {escape(str(index))} over {len(names)} recordings "
                              f"(each one's page: {escape(str(out_dir))}/NAME/report.html)")
