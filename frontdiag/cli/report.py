@@ -109,6 +109,7 @@ def _fleet_report(out_dir: Path, output: Path | None, fail_on: str, no_thumbnail
     """A fleet run's folder: each finished recording's own report (NAME/report.html) and one
     index page over them (index.html, or --output)."""
     import os
+    from functools import partial
 
     import pandas as pd
     from rich.markup import escape
@@ -137,8 +138,7 @@ def _fleet_report(out_dir: Path, output: Path | None, fail_on: str, no_thumbnail
             inputs = ReportInputs(run, None, thumbnails=not no_thumbnails)
             inputs.gate = gate(run.verdicts, fail_on=fail_on)  # type: ignore[arg-type]
             page = out_dir / name / "report.html"
-            html = build_html(inputs)
-            guarded_write(page, lambda p=page, h=html: p.write_text(h, encoding="utf-8"))
+            guarded_write(page, partial(page.write_text, build_html(inputs), encoding="utf-8"))
             pages[name] = Path(os.path.relpath(page, index.parent)).as_posix()
             bar.advance(task)
     text = fleet_index_html(out_dir, summary, pages)
