@@ -90,6 +90,13 @@ def test_a_folder_of_separate_bags_is_a_fleet_and_split_parts_are_one_recording(
     write_recording(split / "run_2024-05-01_1.bag", "bag", n=6, seed=1)
     (split / "notes.txt").write_text("not a recording")
     assert split_parts(split) and discover([split]) == [split.resolve()]
+    killed = tmp_path / "killed"  # the recorder was killed while writing the third part
+    killed.mkdir()
+    for i in range(3):
+        write_recording(killed / f"run_{i}.bag", "bag", n=4, seed=i)
+    (killed / "run_2.bag").rename(killed / "run_2.bag.active")
+    assert split_parts(killed) and discover([killed]) == [killed.resolve()]
+    assert [f.name for f in plan(killed).files] == ["run_0.bag", "run_1.bag", "run_2.bag.active"]
     assert [f.name for f in plan(split).files] == ["run_2024-05-01_0.bag", "run_2024-05-01_1.bag"]
 
     fleet = tmp_path / "fleet"

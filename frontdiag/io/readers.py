@@ -637,7 +637,8 @@ def split_parts(path: Path, kinds: dict[str, list[Path]] | None = None) -> bool:
     ``rosbag record --split`` names its parts ``NAME_0.bag``, ``NAME_1.bag``, ... (NAME often
     a date); a folder of separate recordings (``2024-05-01-10-00-00.bag``, ``aisle.bag``) is a
     fleet, not one recording read end to end. So: every recording file in the folder is a ROS 1
-    bag, and either there is one, or all share one NAME with consecutive part numbers. Recordings
+    bag, and either there is one, or all share one NAME with consecutive part numbers (the last
+    may be ``NAME_N.bag.active``, left by a recorder that was killed). Recordings
     named like parts of one split (``run_1.bag``, ``run_2.bag``) are read as one; name them
     (a glob, or the files) to analyse them separately.
     """
@@ -649,7 +650,9 @@ def split_parts(path: Path, kinds: dict[str, list[Path]] | None = None) -> bool:
         return False
     if len(bags) == 1:
         return True
-    parts = [re.fullmatch(r"(.+)_(\d+)", b.stem) for b in bags]
+    # a recorder killed mid-split leaves its last part as NAME_N.bag.active
+    parts = [re.fullmatch(r"(.+)_(\d+)", b.name.removesuffix(".active").removesuffix(".bag"))
+             for b in bags]
     if not all(parts):
         return False
     names = {m.group(1) for m in parts if m}
