@@ -131,6 +131,20 @@ class InfoDoc(_Doc):
                               "exits 2, the counts cover what was readable before it")
 
 
+class InfoErrorDoc(_Doc):
+    path: str
+    error: str
+
+
+class InfoFleetDoc(_Doc):
+    """`frontdiag info FOLDER --json` on a folder of recordings: one `info` document each."""
+
+    schema_: str = Field(alias="schema", default=schemas.INFO_FLEET_SCHEMA)
+    folder: str
+    recordings: list[InfoDoc]
+    errors: list[InfoErrorDoc] = Field(description="recordings that could not be opened")
+
+
 # --- explain --------------------------------------------------------------------------------
 
 class ClauseDoc(_Doc):
@@ -292,6 +306,7 @@ class EvalDoc(ScoresDoc):
 DOCUMENTS: dict[str, type[BaseModel]] = {
     "analyze": AnalyzeDoc,
     "info": InfoDoc,
+    "info-fleet": InfoFleetDoc,
     "explain": ExplainDoc,
     "rules-list": RulesListDoc,
     "rules-explain": RulesExplainDoc,

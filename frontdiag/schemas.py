@@ -18,6 +18,7 @@ def schema_id(name: str) -> str:
 
 ANALYZE_SCHEMA = schema_id("analyze")
 INFO_SCHEMA = schema_id("info")
+INFO_FLEET_SCHEMA = schema_id("info-fleet")
 EXPLAIN_SCHEMA = schema_id("explain")
 RULES_LIST_SCHEMA = schema_id("rules-list")
 RULES_EXPLAIN_SCHEMA = schema_id("rules-explain")

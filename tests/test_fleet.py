@@ -311,3 +311,24 @@ def test_junit_of_a_fleet_has_one_suite_per_recording(logs: Path, tmp_path: Path
     assert main(["analyze", str(logs), "--out", str(tmp_path / "o2"), "--junit",
                  str(logs / "r1.mcap"), "-q"]) == 2  # would overwrite an input
     assert (logs / "r1.mcap").read_bytes() == before and not (tmp_path / "o2").exists()
+
+
+def test_info_on_a_folder_lists_one_line_per_recording(
+        logs: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """`frontdiag info FOLDER` before a fleet run: each recording's reader, duration and chosen
+    topics on one line, the unreadable one with its error (exit 2); --json holds each
+    recording's own `info` document."""
+    import jsonschema
+
+    assert main(["info", str(logs)]) == 2
+    text = capsys.readouterr().out
+    assert "4 recordings" in text and "/cam/image_raw (20.0)" in text
+    assert "unknown container" in text
+    assert main(["info", str(logs), "--json"]) == 2
+    doc = json.loads(capsys.readouterr().out)
+    schema = json.loads((Path(__file__).resolve().parents[1] / "docs" / "schemas" /
+                         "info-fleet.json").read_text())
+    jsonschema.Draft202012Validator(schema).validate(doc)
+    assert [Path(r["path"]).name for r in doc["recordings"]] == ["r0.mcap", "r1.mcap", "r2.mcap"]
+    assert [Path(e["path"]).name for e in doc["errors"]] == ["bad.mcap"]
+    assert doc["recordings"][0]["analyze_would_use"]["camera"] == "/cam/image_raw"

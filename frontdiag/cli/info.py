@@ -27,7 +27,8 @@ def register(app: typer.Typer) -> None:
 
 
 def info_cmd(
-    log: Path = typer.Argument(..., help="Recording: .bag, .db3, .mcap, or a bag folder.",
+    log: Path = typer.Argument(..., help="Recording: .bag, .db3, .mcap, or a bag folder; a "
+                               "folder of recordings lists one line each.",
                                show_default=False),
     as_json: bool = typer.Option(False, "--json", help="Machine-readable output on stdout "
                                  "(schema docs/schemas/info.json)."),
@@ -36,8 +37,11 @@ def info_cmd(
     from rich.table import Table
 
     from frontdiag.cli._console import make_console
+    from frontdiag.fleet import is_recording
     from frontdiag.inspect import inspect_recording
 
+    if log.is_dir() and not is_recording(log):
+        return _folder(log, as_json)
     rep = inspect_recording(log)
     if as_json:
         from frontdiag.json_models import InfoDoc, emit
@@ -68,6 +72,63 @@ def info_cmd(
     for odd in rep.oddities:
         con.print(f"[yellow]odd:[/] {escape(odd)}", highlight=False)
     return _damage_exit(rep)
+
+
+def _folder(folder: Path, as_json: bool) -> int:
+    """A folder of recordings: one line each (what `info` says of it), before a fleet run."""
+    from rich.markup import escape
+    from rich.table import Table
+
+    from frontdiag.cli._console import make_console
+    from frontdiag.errors import EXIT_INPUT, EXIT_OK, FrontdiagError
+    from frontdiag.fleet import discover
+    from frontdiag.inspect import inspect_recording
+
+    reports, errors = [], []
+    for path in discover([folder]):
+        try:
+            reports.append(inspect_recording(path))
+        except FrontdiagError as exc:
+            errors.append({"path": str(path), "error": str(exc)})
+    code = EXIT_INPUT if errors or any(r.fault for r in reports) else EXIT_OK
+    if as_json:
+        from frontdiag.json_models import InfoFleetDoc, emit
+
+        docs = [json.loads(json.dumps(r.to_dict(), default=str)) for r in reports]
+        typer.echo(emit(InfoFleetDoc, {"folder": str(folder), "recordings": docs,
+                                       "errors": errors}))
+        return code
+    con = make_console()
+    con.print(f"[bold]{escape(str(folder))}[/]: {len(reports) + len(errors)} recordings")
+    t = Table(show_edge=False, header_style="bold")
+    for col, just in (("recording", "left"), ("reader", "left"), ("duration (s)", "right"),
+                      ("camera (Hz)", "left"), ("LiDAR (Hz)", "left"), ("odd", "left")):
+        t.add_column(col, justify=just)  # type: ignore[arg-type]
+    for r in reports:
+        rates = {tr.topic: tr.rate_hz for tr in r.topics}
+
+        def topic(name: str | None, rates: dict = rates) -> str:
+            if not name:
+                return "—"
+            hz = rates.get(name)
+            return f"{name} ({hz:.1f})" if hz else name
+
+        c = r.choice
+        odd = ([f"damaged: {r.fault}"] if r.fault else []) + list(r.oddities)
+        t.add_row(escape(r.path.name), r.backend,
+                  "—" if r.duration_s is None else f"{r.duration_s:.1f}",
+                  escape(topic(c.camera if c else None)) if c else
+                  f"[red]{escape(str(r.choice_error))}[/]",
+                  escape(topic(c.lidar if c else None)),
+                  escape(odd[0] + (f" (+{len(odd) - 1})" if len(odd) > 1 else "")) if odd
+                  else "")
+    for e in errors:
+        t.add_row(escape(Path(e["path"]).name), "—", "—", f"[red]{escape(e['error'])}[/]", "",
+                  "")
+    con.print(t)
+    con.print("[dim]one recording's detail: frontdiag info FILE · analyse them all: "
+              "frontdiag analyze FOLDER --out OUT --jobs N[/]")
+    return code
 
 
 def _damage_exit(rep: object) -> int:
