@@ -55,7 +55,7 @@ class CameraFrame:
 
 @dataclass(frozen=True)
 class LidarScan:
-    """One decoded LiDAR sweep (PointCloud2 or LaserScan as a planar cloud)."""
+    """One decoded LiDAR sweep (PointCloud2, Livox CustomMsg, or LaserScan as a planar cloud)."""
 
     index: int
     t_ns: int

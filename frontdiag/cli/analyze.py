@@ -67,7 +67,7 @@ def analyze_cmd(
     camera_topic: str | None = typer.Option(None, "--camera-topic",
                                             help="Image topic (Image or CompressedImage)."),
     lidar_topic: str | None = typer.Option(None, "--lidar-topic",
-                                           help="LiDAR topic (PointCloud2 or LaserScan)."),
+                                           help="LiDAR topic (PointCloud2, LaserScan or Livox CustomMsg)."),
     odom_topic: str | None = typer.Option(None, "--odom-topic",
                                           help="Odometry used as the LiDAR motion prior."),
     no_camera: bool = typer.Option(False, "--no-camera", help="Skip the camera frontend."),

@@ -117,7 +117,7 @@ def choose_topics(topics: list[TopicInfo], *, camera_topic: str | None = None,
                                   "frames anyway")
         if use_camera and use_lidar:
             raise TopicError("no usable sensor topics: the recording has no sensor_msgs/Image, "
-                             "CompressedImage, PointCloud2 or LaserScan messages",
+                             "CompressedImage, PointCloud2, LaserScan or Livox CustomMsg messages",
                              hint="run `frontdiag info LOG` to see what it holds")
         raise TopicError("nothing left to analyze with the sensors that were switched off")
     return TopicChoice(camera=cam.topic if cam else None, camera_type=cam.msgtype if cam else None,
