@@ -173,6 +173,28 @@ def test_requested_topic_must_exist(tmp_path: Path) -> None:
         choose_topics(rec.topics, camera_topic="/nope")
 
 
+def test_several_requested_topics_take_the_first_the_recording_holds(tmp_path: Path) -> None:
+    """`--camera-topic A,B`: one fleet command over recordings that name the camera
+    differently; the order decides where a recording holds both; none present is an error
+    naming them all and what is available."""
+    def extra(w, i, t):  # type: ignore[no-untyped-def]
+        w.write("/cam2/image_raw", "sensor_msgs/msg/Image", image_msg(frame(i), "mono8", t), t)
+
+    one = write_recording(tmp_path / "one.mcap", "mcap", n=2)
+    two = write_recording(tmp_path / "two.mcap", "mcap", n=2, extra=extra)
+    with open_recording(one) as rec:
+        assert choose_topics(rec.topics, camera_topic="/left/image_raw, /cam/image_raw"
+                             ).camera == "/cam/image_raw"
+        with pytest.raises(TopicError, match="none of the topics /a, /b") as err:
+            choose_topics(rec.topics, camera_topic="/a,/b")
+        assert "--camera-topic /cam/image_raw" in (err.value.hint or "")
+    with open_recording(two) as rec:
+        assert choose_topics(rec.topics, camera_topic="/cam2/image_raw,/cam/image_raw"
+                             ).camera == "/cam2/image_raw"
+        assert choose_topics(rec.topics, camera_topic="/cam/image_raw,/cam2/image_raw"
+                             ).camera == "/cam/image_raw"
+
+
 def test_camera_info_paired_by_namespace(tmp_path: Path) -> None:
     path = write_recording(tmp_path / "one.mcap", "mcap", n=2)
     with open_recording(path) as rec:

@@ -38,6 +38,8 @@ Examples:
 
   frontdiag analyze logs/ 'more/*.mcap' --out fleet/ --jobs 2   # a fleet: one folder each
 
+  frontdiag analyze logs/ --out fleet/ --camera-topic /cam0/image_raw,/left/image_raw
+
   frontdiag analyze logs/ --out fleet/ --scheduler tcp://10.0.0.5:8786   # on a Dask cluster
 
 Exit codes: 0 nothing at or above --fail-on, 1 a gate failed, 2 bad input / usage / config,
@@ -65,9 +67,14 @@ def analyze_cmd(
     fmt: str = typer.Option("parquet", "--format", metavar="[parquet|csv]",
                             help="parquet (always written) or csv (adds frames.csv)."),
     camera_topic: str | None = typer.Option(None, "--camera-topic",
-                                            help="Image topic (Image or CompressedImage)."),
+                                            help="Image topic (Image or CompressedImage); "
+                                            "several, comma-separated: the first the recording "
+                                            "holds (a fleet whose recordings name the camera "
+                                            "differently)."),
     lidar_topic: str | None = typer.Option(None, "--lidar-topic",
-                                           help="LiDAR topic (PointCloud2, LaserScan or Livox CustomMsg)."),
+                                           help="LiDAR topic (PointCloud2, LaserScan or Livox "
+                                           "CustomMsg); several, comma-separated, as for "
+                                           "--camera-topic."),
     odom_topic: str | None = typer.Option(None, "--odom-topic",
                                           help="Odometry used as the LiDAR motion prior."),
     no_camera: bool = typer.Option(False, "--no-camera", help="Skip the camera frontend."),

@@ -46,6 +46,21 @@ def candidates(topics: list[TopicInfo], types: tuple[str, ...]) -> list[TopicInf
 
 def _pick(kind: str, option: str, requested: str | None, cands: list[TopicInfo],
           all_topics: list[TopicInfo]) -> TopicInfo | None:
+    """The topic of this kind: the one ``requested`` names, else the only candidate.
+
+    ``requested`` may list several names separated by commas (ROS names hold no comma): the
+    first the recording holds is read, so one fleet command covers recordings that name the
+    same camera differently (``/cam0/image_raw,/stereo/left/image_raw``).
+    """
+    if requested is not None and "," in requested:
+        names = [n.strip() for n in requested.split(",") if n.strip()]
+        present = {t.topic for t in all_topics}
+        first = next((n for n in names if n in present), None)
+        if first is None:
+            raise TopicError(f"none of the topics {', '.join(names)} is in the recording",
+                             candidates=[c.topic for c in cands],
+                             hint=_suggest(option, cands))
+        requested = first
     if requested is not None:
         for t in all_topics:
             if t.topic == requested:
