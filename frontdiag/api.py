@@ -30,6 +30,7 @@ from frontdiag.io.camera_info import (
     is_rectified_topic,
     load_camera_info_yaml,
     parse_intrinsics,
+    scaled_K,
 )
 from frontdiag.io.decode import header_stamp_ns, odometry_pose
 from frontdiag.io.readers import Recording, open_recording, recording_size
@@ -158,9 +159,7 @@ def fit_to_images(intr: Intrinsics, size: tuple[int, int] | None,
     A calibration describes the image size it was made at; a resize node or binning that
     passes the CameraInfo on unchanged leaves K for the full view, and the principal point then
     lies far from the images' centre, which biases every E, parallax and rotation reading.
-    Resizing by s maps a pixel centre x to (x + 0.5) s - 0.5, so fx' = s fx and
-    cx' = (cx + 0.5) s - 0.5; the distortion coefficients act on normalised coordinates and
-    stay as they are.
+    The scaling is :func:`frontdiag.io.camera_info.scaled_K`, the one binning uses.
     """
     if size is None or (size[0], size[1]) == (intr.width, intr.height):
         return intr
@@ -172,9 +171,7 @@ def fit_to_images(intr: Intrinsics, size: tuple[int, int] | None,
                      f"used as it is and the geometry readings are suspect; {HOW_TO_PASS_K} "
                      "for these images")
         return intr
-    K = np.array(intr.K, dtype=np.float64)
-    K[0, 0], K[0, 1], K[1, 1] = K[0, 0] * sx, K[0, 1] * sx, K[1, 1] * sy
-    K[0, 2], K[1, 2] = (K[0, 2] + 0.5) * sx - 0.5, (K[1, 2] + 0.5) * sy - 0.5
+    K = scaled_K(intr.K, sx, sy)
     notes.append(f"{intr.source} is for {intr.width}x{intr.height} images, the camera's are "
                  f"{w}x{h}: K scaled by {sx:.4g} (the same view resized)")
     return replace(intr, K=K, width=w, height=h,

@@ -363,6 +363,16 @@ def write_summary(out: Path, rows: list[dict[str, Any]]) -> Path:
     return path
 
 
+def is_fleet_out(folder: Path | str) -> bool:
+    """Whether ``folder`` is the ``--out`` folder of a fleet run (it holds the summary)."""
+    return (Path(folder) / SUMMARY_FILE).is_file()
+
+
+def read_summary(folder: Path | str) -> pd.DataFrame:
+    """The summary of a fleet run's ``--out`` folder, one row per recording."""
+    return pd.read_parquet(Path(folder) / SUMMARY_FILE)
+
+
 def worst_exit(rows: list[dict[str, Any]]) -> int:
     """The fleet's exit code: the worst of its recordings' (gate 1, bad input 2, bug 3)."""
     return max((int(r.get("exit_code") or 0) for r in rows), default=EXIT_OK)

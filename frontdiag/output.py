@@ -201,7 +201,9 @@ def result_dir_hint(d: Path, default: str) -> str:
     """What to pass instead of ``d``, a folder with no frames table: one recording's folder when
     ``d`` is the ``--out`` folder of a fleet run (it holds ``fleet_summary.parquet`` and a folder
     per recording), else ``default``."""
-    if not (Path(d) / "fleet_summary.parquet").is_file():
+    from frontdiag.fleet import is_fleet_out
+
+    if not is_fleet_out(d):
         return default
     names = sorted(c.name for c in Path(d).iterdir() if (c / "frames.parquet").is_file())
     if not names:

@@ -54,13 +54,13 @@ def fleet_reports(out: Path) -> tuple[list[tuple[str, Any]], list[str]]:
     """Each finished recording of a fleet run's ``--out`` folder scored against the labels
     beside the recording (``<recording>.labels.csv``): ``(name, report)`` pairs, and the names
     left out with why (no labels, not analysed)."""
-    import pandas as pd
 
     from frontdiag.conditions import CONDITIONS
+    from frontdiag.fleet import read_summary
     from frontdiag.scoring import read_frames, read_labels, score
     from frontdiag.sim.run import labels_path_for
 
-    summary = pd.read_parquet(out / "fleet_summary.parquet")
+    summary = read_summary(out)
     scored, left = [], []
     for row in summary.itertuples(index=False):
         name = str(row.recording)
@@ -173,7 +173,9 @@ def register(app: typer.Typer) -> None:
             raise ConfigError(f"{target}: not found")
         per_recording: list[tuple[str, Any]] = []
         left: list[str] = []
-        if target.is_dir() and (target / "fleet_summary.parquet").is_file():
+        from frontdiag.fleet import is_fleet_out
+
+        if is_fleet_out(target):
             if labels is not None:
                 raise ConfigError(f"{target} is a fleet run's folder: each recording is scored "
                                   "against its own <recording>.labels.csv",

@@ -60,7 +60,9 @@ def report_cmd(
 
     if fail_on not in ("warn", "fail", "never"):
         raise ConfigError(f"--fail-on {fail_on!r}: choose warn, fail or never")
-    if (result_dir / "fleet_summary.parquet").is_file():
+    from frontdiag.fleet import is_fleet_out
+
+    if is_fleet_out(result_dir):
         if baseline is not None or target is not None:
             raise ConfigError(f"{result_dir} is a fleet run's folder: --baseline and --target "
                               "apply to one recording's result",
@@ -111,12 +113,12 @@ def _fleet_report(out_dir: Path, output: Path | None, fail_on: str, no_thumbnail
     import os
     from functools import partial
 
-    import pandas as pd
     from rich.markup import escape
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
     from frontdiag.cli._console import make_console
     from frontdiag.errors import EXIT_OK, ConfigError
+    from frontdiag.fleet import read_summary
     from frontdiag.output import guarded_write
     from frontdiag.report.html import ReportInputs, build_html, fleet_index_html, load_run
     from frontdiag.verdicts import gate
@@ -126,7 +128,7 @@ def _fleet_report(out_dir: Path, output: Path | None, fail_on: str, no_thumbnail
         raise ConfigError(f"--output {index}: folder {index.parent} does not exist")
     if index.is_dir():
         raise ConfigError(f"--output {index}: is a directory; name the HTML file")
-    summary = pd.read_parquet(out_dir / "fleet_summary.parquet")
+    summary = read_summary(out_dir)
     names = [str(n) for n in summary["recording"] if (out_dir / str(n) / "frames.parquet").is_file()]
     pages: dict[str, str] = {}
     with Progress(TextColumn("[bold]report[/] {task.description}"), BarColumn(),

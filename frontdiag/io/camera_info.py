@@ -64,13 +64,22 @@ def from_camera_info(msg: Any, topic: str, notes: list[str] | None = None,
         K[1, 2] -= oy
         what.append(f"region of interest {rw}x{rh} at ({ox}, {oy})")
     if bx > 1 or by > 1:
-        K[0, 0], K[0, 1], K[1, 1] = K[0, 0] / bx, K[0, 1] / bx, K[1, 1] / by
-        K[0, 2], K[1, 2] = (K[0, 2] + 0.5) / bx - 0.5, (K[1, 2] + 0.5) / by - 0.5
+        K = scaled_K(K, 1.0 / bx, 1.0 / by)
         w, h = w // bx, h // by
         what.append(f"binning {bx}x{by}")
     if notes is not None:
         notes.append(f"{intr.source}: K moved to its {' and '.join(what)} ({w}x{h} images)")
     return replace(intr, K=K, width=w, height=h)
+
+
+def scaled_K(K: np.ndarray, sx: float, sy: float) -> np.ndarray:
+    """K for the same view resampled by ``sx`` across and ``sy`` down (a resize, or binning by
+    1/s). A pixel centre x maps to (x + 0.5) s - 0.5, so fx' = s fx and cx' = (cx + 0.5) s - 0.5;
+    distortion acts on normalised coordinates and is not changed."""
+    K = np.array(K, dtype=np.float64)
+    K[0, 0], K[0, 1], K[1, 1] = K[0, 0] * sx, K[0, 1] * sx, K[1, 1] * sy
+    K[0, 2], K[1, 2] = (K[0, 2] + 0.5) * sx - 0.5, (K[1, 2] + 0.5) * sy - 0.5
+    return K
 
 
 def _full_resolution(msg: Any, topic: str, notes: list[str] | None = None,
