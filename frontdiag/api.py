@@ -33,6 +33,7 @@ from frontdiag.io.camera_info import (
     scaled_K,
 )
 from frontdiag.io.decode import header_stamp_ns, odometry_pose
+from frontdiag.io.foxglove import is_video
 from frontdiag.io.readers import Recording, open_recording, recording_size
 from frontdiag.io.topics import TopicChoice, choose_topics
 from frontdiag.metrics import CAMERA_COLUMNS, LIDAR_COLUMNS
@@ -132,21 +133,28 @@ def resolve_intrinsics(rec: Recording, choice: TopicChoice, opts: AnalysisOption
     return None
 
 
+VIDEO_KEYFRAME_SEARCH = 600
+"""Messages of a video topic read for its first picture (a keyframe every 20 s at 30 Hz)."""
+
+
 def first_image_size(rec: Recording, choice: TopicChoice) -> tuple[int, int] | None:
-    """(width, height) of the camera topic's first image, or None when it cannot be read (the
-    run then reports that frame itself)."""
+    """(width, height) of the camera topic's first image (of a video topic, its first picture,
+    within VIDEO_KEYFRAME_SEARCH messages), or None when it cannot be read (the run then
+    reports that frame itself)."""
+    from frontdiag.io.images import GrayConverter
+
     assert choice.camera is not None
-    for raw in rec.messages([choice.camera]):
+    conv = GrayConverter(choice.camera)
+    for i, raw in enumerate(rec.messages([choice.camera])):
         try:
             msg = rec.deserialize(raw)
-            if raw.msgtype.endswith("CompressedImage"):
-                import cv2
-
-                img = cv2.imdecode(np.asarray(msg.data, np.uint8), cv2.IMREAD_UNCHANGED)
-                return None if img is None else (int(img.shape[1]), int(img.shape[0]))
-            return int(msg.width), int(msg.height)
+            if not is_video(raw.msgtype) and hasattr(msg, "width") and hasattr(msg, "height"):
+                return int(msg.width), int(msg.height)
+            gray, _ = conv(msg, raw.msgtype)
+            return int(gray.shape[1]), int(gray.shape[0])
         except Exception:
-            return None
+            if not is_video(raw.msgtype) or i + 1 >= VIDEO_KEYFRAME_SEARCH:
+                return None
     return None
 
 
@@ -265,6 +273,10 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
         counts = {t.topic: t.count for t in topic_infos}
         expected = sum(_expected(counts.get(t), opts, rec) or 0
                        for t in (choice.camera, choice.lidar) if t)
+        if opts.jobs > 1 and choice.camera_type and is_video(choice.camera_type):
+            notes.append(f"--jobs {opts.jobs}: {choice.camera} is video, whose pictures depend "
+                         "on the ones before them back to a keyframe, so it is read in one "
+                         "process")
         if opts.jobs > 1:
             from frontdiag.parallel import run_windows
 

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from frontdiag.errors import TopicError
+from frontdiag.io import foxglove
 from frontdiag.io.images import IMAGE_TYPES
 from frontdiag.io.readers import open_recording
 from frontdiag.io.topics import LIDAR_TYPES, TopicChoice, choose_topics
@@ -134,6 +135,9 @@ def inspect_recording(path: Path | str, gap_factor: float = 3.0) -> RecordingRep
 
 
 def _detail(msg: Any, msgtype: str) -> str:
+    msgtype = foxglove.ros_type(msgtype)
+    if msgtype in foxglove.VIDEO_TYPES:
+        return f"video {msg.format}"
     if msgtype.endswith("/Image"):
         return f"{msg.width}x{msg.height} {msg.encoding}"
     if msgtype.endswith("CompressedImage"):

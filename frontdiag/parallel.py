@@ -26,6 +26,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from frontdiag.io.foxglove import is_video
 from frontdiag.io.readers import Recording, open_recording
 from frontdiag.io.topics import TopicChoice
 from frontdiag.records import Intrinsics
@@ -200,8 +201,9 @@ def run_windows(path: Path, rec: Recording, choice: TopicChoice, opts: Any,
     cparams = opts.camera_params or CameraParams()
     overlap = OVERLAP_KEYFRAMES * cparams.kf_max_frames * max(opts.stride, 1)
     windows = plan_windows(n_cam, opts.jobs, overlap) if n_cam else []
-    if len(windows) < 2 or opts.max_frames:
-        # nothing to split (no camera, a short one, or a frame budget counted from the start)
+    if len(windows) < 2 or opts.max_frames or is_video(choice.camera_type or ""):
+        # nothing to split (no camera, a short one, or a frame budget counted from the start),
+        # or a video, whose pictures need the ones before them back to a keyframe
         log.info("one window: analysing %s in one process", path)
         return run_stream(rec, choice, opts, intr, progress=progress, expected=expected)
     cam_choice = replace(choice, lidar=None, lidar_type=None, odometry=None)

@@ -21,6 +21,7 @@ from typing import Any
 
 from frontdiag.errors import ConfigError, DecodeError, FrontdiagError
 from frontdiag.io.decode import decode_camera, decode_lidar, header_stamp_ns, odometry_pose
+from frontdiag.io.foxglove import is_video
 from frontdiag.io.images import GrayConverter
 from frontdiag.io.readers import Recording
 from frontdiag.io.topics import TopicChoice
@@ -241,6 +242,15 @@ def prime_converter(rec: Recording, topic: str, conv: GrayConverter, opts: Any) 
         return
 
 
+def feed_video(rec: Recording, raw: Any, conv: GrayConverter) -> None:
+    """Decode a video message that is not analysed (before --start, or between --stride
+    frames): the pictures after it are predicted from it."""
+    try:
+        conv(rec.deserialize(raw), raw.msgtype)
+    except Exception as exc:  # the frames that are analysed report their own faults
+        log.debug("video message on %s not decoded: %s", raw.topic, exc)
+
+
 @contextmanager
 def frame_boundary_interrupts() -> Iterator[Callable[[], bool]]:
     """Ctrl-C (or SIGTERM where it is handled like Ctrl-C) during the block is held until the
@@ -291,12 +301,14 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
     cam_front = lid_front = None
     cam_stream = lid_stream = None
     conv = None
+    video = False
     if choice.camera:
         from frontdiag.camera.frontend import CameraFrontend, CameraParams
 
         cam_front = CameraFrontend(opts.camera_params or CameraParams(), intr)
         cam_stream = SensorStream(choice.camera, opts, frames)
         conv = GrayConverter(choice.camera)
+        video = bool(choice.camera_type) and is_video(choice.camera_type or "")
         if frames is not None and frames.warm_from > 0:
             prime_converter(rec, choice.camera, conv, opts)
         if resume is not None:
@@ -363,10 +375,14 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
                     if cam_stream.draining and not cam_front.pending:
                         break
                     if not cam_stream.admit(raw.log_ns):
+                        if video:  # not analysed, but later pictures are decoded from it
+                            feed_video(rec, raw, conv)
                         continue
                     frame = decode_camera(rec, raw, cam_stream, conv)
                     if frame is None:
-                        check_all_failed(cam_stream)
+                        # a video waits for its first keyframe, however many messages that is
+                        if not (video and conv.video is not None and conv.video.pictures == 0):
+                            check_all_failed(cam_stream)
                         continue
                     row = cam_stream.analyse(frame, cam_front, "camera", rec_start)
                     if cam_stream.owned:

@@ -12,6 +12,8 @@ from frontdiag.errors import ConfigError
 from frontdiag.records import Intrinsics
 
 CAMERA_INFO_TYPE = "sensor_msgs/msg/CameraInfo"
+CAMERA_INFO_TYPES = (CAMERA_INFO_TYPE, "foxglove.CameraCalibration",
+                     "foxglove_msgs/msg/CameraCalibration")
 KNOWN_MODELS = ("plumb_bob", "rational_polynomial", "equidistant", "fisheye", "none", "")
 
 HOW_TO_PASS_K = ("pass intrinsics with --intrinsics fx,fy,cx,cy or --camera-info camera.yaml "
@@ -222,7 +224,8 @@ def camera_info_topic_for(image_topic: str, info_topics: list[str]) -> str | Non
 
     ROS drivers put it beside the image (``/cam/image_raw`` -> ``/cam/camera_info``); the
     RealSense SDK's bag layout keeps it one level down (``.../Color_0/image/data`` ->
-    ``.../Color_0/info/camera_info``).
+    ``.../Color_0/info/camera_info``); Foxglove's ``CameraCalibration`` is usually published as
+    ``/cam/calibration``.
     """
     if not info_topics:
         return None
@@ -230,7 +233,8 @@ def camera_info_topic_for(image_topic: str, info_topics: list[str]) -> str | Non
     # /cam/image_raw -> /cam ; /cam/image_raw/compressed -> /cam
     for depth in range(len(parts) - 1, 0, -1):
         ns = "/".join(parts[:depth])
-        for cand in (f"{ns}/camera_info", f"{ns}/info/camera_info"):
+        for cand in (f"{ns}/camera_info", f"{ns}/info/camera_info", f"{ns}/calibration",
+                     f"{ns}/camera_calibration"):
             if cand in info_topics:
                 return cand
     return info_topics[0] if len(info_topics) == 1 else None

@@ -13,6 +13,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from frontdiag.errors import DecodeError
+from frontdiag.io import foxglove
 from frontdiag.io.images import GrayConverter
 from frontdiag.io.readers import RawMessage, Recording
 from frontdiag.records import CameraFrame, LidarScan
@@ -85,8 +86,12 @@ def decode_lidar(rec: Recording, raw: RawMessage, stream: StampSink) -> LidarSca
             return replace(scan, t_ns=t_ns, ms_decode=(time.perf_counter() - t0) * 1e3)
         msg = rec.deserialize(raw)
         t_ns = stream.stamp(msg, raw.log_ns)
-        fn = decode_laserscan if raw.msgtype.endswith("LaserScan") else decode_pointcloud2
+        kind = foxglove.ros_type(raw.msgtype)
+        fn = decode_laserscan if kind.endswith("LaserScan") else decode_pointcloud2
         scan = fn(msg, topic=raw.topic, index=stream.index, log_ns=raw.log_ns)
+        pose = getattr(msg, "pose_T", None)  # Foxglove's: where the points' origin sits
+        if pose is not None:
+            scan = replace(scan, xyz=foxglove.apply_pose(scan.xyz, pose))
     except DecodeError as exc:
         stream.skip(exc)
         return None

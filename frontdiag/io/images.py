@@ -14,8 +14,10 @@ import cv2
 import numpy as np
 
 from frontdiag.errors import DecodeError
+from frontdiag.io import foxglove
 
-IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage",
+               *foxglove.IMAGE_TYPES)
 
 # ROS encoding -> (channels, bytes per channel, cv2 conversion to grey or None)
 _ENCODINGS: dict[str, tuple[int, int, int | None]] = {
@@ -47,14 +49,22 @@ SUPPORTED_ENCODINGS: tuple[str, ...] = tuple(k for k in _ENCODINGS if not k[0].i
 
 @dataclass
 class GrayConverter:
-    """Stateful only for mono16: the bit shift is fixed from the first frame so that frame means
-    stay comparable across the run (a per-frame stretch would hide exposure steps)."""
+    """Stateful for mono16: the bit shift is fixed from the first frame so that frame means
+    stay comparable across the run (a per-frame stretch would hide exposure steps); and for
+    video, whose pictures depend on the ones before them (:class:`VideoDecoder`)."""
 
     topic: str
     mono16_shift: int | None = None
     encodings_seen: set[str] = field(default_factory=set)
+    video: VideoDecoder | None = None
 
     def __call__(self, msg: Any, msgtype: str) -> tuple[np.ndarray, str]:
+        msgtype = foxglove.ros_type(msgtype)
+        if msgtype in foxglove.VIDEO_TYPES:
+            fmt = str(msg.format).strip().lower()
+            if self.video is None:
+                self.video = VideoDecoder(self.topic, fmt)
+            return self.video(msg.data, fmt), f"video/{fmt or '?'}"
         if msgtype.endswith("CompressedImage"):
             return self._compressed(msg), f"compressed/{str(msg.format).strip() or '?'}"
         return self._raw(msg), str(msg.encoding)
@@ -112,3 +122,55 @@ class GrayConverter:
             bits = max(peak.bit_length(), 8)
             self.mono16_shift = bits - 8
         return (img16 >> self.mono16_shift).clip(0, 255).astype(np.uint8)
+
+
+NO_KEYFRAME = "no keyframe yet: a video's pictures are decoded from its first keyframe on"
+
+# Foxglove CompressedVideo formats -> FFmpeg decoder names
+VIDEO_CODECS = {"h264": "h264", "h265": "hevc", "hevc": "hevc", "vp9": "vp9", "av1": "av1"}
+
+
+class VideoDecoder:
+    """One video topic's decoder (FFmpeg through PyAV): one message, one picture.
+
+    Foxglove's ``CompressedVideo`` carries exactly one picture per message, with no B-frames
+    (no picture waits for a later one), so each message gives its own picture at once; the
+    decoder runs on one thread, since frame threading would hold pictures back. Messages before
+    the first keyframe, or whose keyframe was lost, give no picture and are skipped with that
+    reason, as undecodable messages are.
+    """
+
+    def __init__(self, topic: str, fmt: str) -> None:
+        codec = VIDEO_CODECS.get(fmt)
+        if codec is None:
+            raise DecodeError(topic, "format", f"unsupported video format {fmt!r} (supported: "
+                                               f"{', '.join(VIDEO_CODECS)})")
+        import av
+
+        self.topic = topic
+        self.fmt = fmt
+        self._av = av
+        self._ctx: Any = av.CodecContext.create(codec, "r")  # a VideoCodecContext
+        self._ctx.thread_type = "NONE"
+        self.pictures = 0
+
+    def __call__(self, data: Any, fmt: str) -> np.ndarray:
+        if fmt != self.fmt:
+            raise DecodeError(self.topic, "format",
+                              f"changes from {self.fmt!r} to {fmt!r} within the topic")
+        buf = bytes(data)
+        if not buf:
+            raise DecodeError(self.topic, "data", "empty video message")
+        try:
+            frames = self._ctx.decode(self._av.Packet(buf))
+        except self._av.error.FFmpegError as exc:
+            if self.pictures == 0:
+                raise DecodeError(self.topic, "data", NO_KEYFRAME) from None
+            raise DecodeError(self.topic, "data",
+                              f"undecodable {self.fmt} picture ({exc.strerror or exc})") from None
+        if not frames:
+            raise DecodeError(self.topic, "data", NO_KEYFRAME if self.pictures == 0
+                              else f"no {self.fmt} picture in the message")
+        self.pictures += 1
+        # the last picture, should a message hold more than Foxglove allows
+        return np.ascontiguousarray(frames[-1].to_ndarray(format="gray"))

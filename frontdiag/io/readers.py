@@ -7,14 +7,16 @@ Two backends sit behind :func:`open_recording`:
   without index is read record by record (:mod:`frontdiag.io.bag_scan`), a truncated ``.db3``
   row by row up to the damage (:mod:`frontdiag.io.db3_scan`).
 * ``mcap`` (the ``mcap`` package): standalone MCAP files in ROS 2 (``cdr``) or ROS 1 encoding,
-  including files written outside ROS. It also reads MCAP files whose summary section is missing
+  including files written outside ROS, and Foxglove's schemas in Protobuf or JSON encoding
+  (:mod:`frontdiag.io.foxglove`). It also reads MCAP files whose summary section is missing
   (a recorder that was killed), streaming records until the damage.
 
 Which backend takes a standalone ROS 2 MCAP file was decided by measurement
 (``benchmarks/bench_readers.py``); see :data:`MCAP_BACKEND`.
 
 Messages are returned raw (bytes) and deserialised on demand into rosbags message objects, so
-decoders see the same object shape whatever the container.
+decoders see the same object shape whatever the container; Foxglove's schemas are given the
+fields of their ``sensor_msgs`` counterparts.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from types import TracebackType
 from typing import Any, Protocol
 
 from frontdiag.errors import RecordingError
+from frontdiag.io import foxglove
 from frontdiag.io.writer import normalise_msgtype, typestore
 
 log = logging.getLogger(__name__)
@@ -38,7 +41,7 @@ class TopicInfo:
     topic: str
     msgtype: str  # normalised: pkg/msg/Type
     count: int | None  # None when the container does not say (damaged MCAP)
-    encoding: str = ""  # cdr | ros1
+    encoding: str = ""  # cdr | ros1 | protobuf | json
 
 
 @dataclass(frozen=True)
@@ -182,7 +185,8 @@ class RosbagsRecording(_Base):
                                    n)
 
     def deserialize(self, raw: RawMessage) -> Any:
-        return self._reader.deserialize(bytes(raw.data), raw.key.msgtype)
+        return foxglove.adapt(self._reader.deserialize(bytes(raw.data), raw.key.msgtype),
+                              raw.msgtype)
 
     def close(self) -> None:
         try:
@@ -324,6 +328,7 @@ class McapRecording(_Base):
         if self._summary is None:
             log.info("%s has no summary section (recording cut short?); streaming it", path)
         self._schema_cache: dict[int, tuple[str, int, Any]] = {}
+        self._decoders: dict[int, Any] = {}  # protobuf / json, by schema id
         self._channels: dict[str, tuple[str, str]] = {}  # topic -> (msgtype, encoding)
         self._counts: dict[str, int] = {}
         self._start: int | None = None
@@ -392,10 +397,27 @@ class McapRecording(_Base):
         schema, encoding = raw.key
         if schema is None:
             raise ValueError(f"topic {raw.topic} has no schema; cannot decode")
+        if encoding in foxglove.ENCODINGS:
+            return foxglove.adapt(self._decoder_for(schema, encoding)(bytes(raw.data)),
+                                  raw.msgtype)
         typename, version, ts = self._typestore_for(schema, encoding)
         if version == 1:
-            return ts.deserialize_ros1(raw.data, typename)
-        return ts.deserialize_cdr(raw.data, typename)
+            msg = ts.deserialize_ros1(raw.data, typename)
+        else:
+            msg = ts.deserialize_cdr(raw.data, typename)
+        return foxglove.adapt(msg, raw.msgtype)
+
+    def _decoder_for(self, schema: Any, encoding: str) -> Any:
+        """Protobuf or JSON: only Foxglove's schemas are read (:mod:`frontdiag.io.foxglove`)."""
+        fn = self._decoders.get(schema.id)
+        if fn is None:
+            if foxglove.kind(schema.name) is None:
+                raise ValueError(f"{encoding} schema {schema.name!r} is not one frontdiag reads "
+                                 "(Foxglove's image, calibration, point cloud and scan schemas)")
+            fn = (foxglove.protobuf_decoder(schema) if encoding == "protobuf"
+                  else foxglove.json_decoder(schema))
+            self._decoders[schema.id] = fn
+        return fn
 
     def _typestore_for(self, schema: Any, encoding: str) -> tuple[str, int, Any]:
         cached = self._schema_cache.get(schema.id)
@@ -406,7 +428,8 @@ class McapRecording(_Base):
         elif encoding == "cdr":
             version = 2
         else:
-            raise ValueError(f"message encoding {encoding!r} is not supported (cdr or ros1)")
+            raise ValueError(f"message encoding {encoding!r} is not supported (cdr, ros1, "
+                             "and protobuf or json for Foxglove's schemas)")
         ts = typestore(version)
         typename = normalise_msgtype(schema.name)
         if typename not in ts.types:

@@ -5,14 +5,16 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from frontdiag.errors import TopicError
-from frontdiag.io.camera_info import CAMERA_INFO_TYPE, camera_info_topic_for
+from frontdiag.io import foxglove
+from frontdiag.io.camera_info import CAMERA_INFO_TYPES, camera_info_topic_for
 from frontdiag.io.images import IMAGE_TYPES
 from frontdiag.io.readers import TopicInfo
 
 LIDAR_TYPES = ("sensor_msgs/msg/PointCloud2", "sensor_msgs/msg/LaserScan",
                # Livox drivers' own scan message (frontdiag/lidar/livox.py)
                "livox_ros_driver/msg/CustomMsg", "livox_ros_driver2/msg/CustomMsg",
-               "livox_interfaces/msg/CustomMsg")
+               "livox_interfaces/msg/CustomMsg",
+               *foxglove.LIDAR_TYPES)
 ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
 _NOT_ODOMETRY = ("ground_truth", "groundtruth", "/gt", "truth", "mocap", "vicon")
 # image topics that carry range, not intensity (RGB-D and stereo drivers publish them beside the
@@ -107,7 +109,7 @@ def choose_topics(topics: list[TopicInfo], *, camera_topic: str | None = None,
                 candidates(topics, LIDAR_TYPES), topics) if use_lidar else None
     info = None
     if cam is not None:
-        infos = [t.topic for t in candidates(topics, (CAMERA_INFO_TYPE,))]
+        infos = [t.topic for t in candidates(topics, CAMERA_INFO_TYPES)]
         info = camera_info_topic_for(cam.topic, infos)
         if info is None:
             notes.append(f"no CameraInfo for {cam.topic}")
@@ -132,7 +134,8 @@ def choose_topics(topics: list[TopicInfo], *, camera_topic: str | None = None,
                                   "frames anyway")
         if use_camera and use_lidar:
             raise TopicError("no usable sensor topics: the recording has no sensor_msgs/Image, "
-                             "CompressedImage, PointCloud2, LaserScan or Livox CustomMsg messages",
+                             "CompressedImage, PointCloud2, LaserScan, Livox CustomMsg or "
+                             "Foxglove image, video, point cloud or scan messages",
                              hint="run `frontdiag info LOG` to see what it holds")
         raise TopicError("nothing left to analyze with the sensors that were switched off")
     return TopicChoice(camera=cam.topic if cam else None, camera_type=cam.msgtype if cam else None,

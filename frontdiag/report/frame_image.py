@@ -18,6 +18,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from frontdiag.io.foxglove import is_video
 from frontdiag.records import (
     KP_INLIER,
     KP_OUTLIER,
@@ -117,10 +118,38 @@ def read_pixels(manifest: Mapping[str, Any], topic: str, log_ns: int) -> np.ndar
     try:
         with open_recording(Path(path)) as rec:
             for raw in rec.messages([topic], log_ns, log_ns):
+                if is_video(raw.msgtype):
+                    return _video_picture(rec, topic, log_ns)
                 gray, _ = GrayConverter(topic)(rec.deserialize(raw), raw.msgtype)
                 return gray
     except (FrontdiagError, OSError, ValueError) as exc:
         log.info("cannot re-read %s at %d from %s: %s", topic, log_ns, path, exc)
+    return None
+
+
+VIDEO_LOOKBACK_S = (2.0, 10.0, 60.0, None)
+"""How far before a video picture decoding starts, tried in turn until it reaches a keyframe
+(None: from the start of the recording)."""
+
+
+def _video_picture(rec: Any, topic: str, log_ns: int) -> np.ndarray | None:
+    """The picture of a video topic logged at ``log_ns``: decoded from a keyframe before it,
+    found by starting further back each time none was met."""
+    from frontdiag.io.images import GrayConverter
+
+    for back in VIDEO_LOOKBACK_S:
+        start = None if back is None else max(log_ns - int(back * 1e9), 0)
+        conv = GrayConverter(topic)
+        gray = None
+        for raw in rec.messages([topic], start, log_ns):
+            try:
+                out, _ = conv(rec.deserialize(raw), raw.msgtype)
+            except Exception:  # before the keyframe, or a damaged picture
+                continue
+            if raw.log_ns == log_ns:
+                gray = out
+        if gray is not None or start is None or start == 0:
+            return gray
     return None
 
 
