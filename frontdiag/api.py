@@ -96,6 +96,7 @@ class Analysis:
     interrupted: bool = False
     verdicts: Any = None  # frontdiag.verdicts.Verdicts when rules were evaluated
     ruleset: Any = None
+    windows: int = 1  # camera windows analysed in parallel (--jobs); 1: in this process
 
 
 # --------------------------------------------------------------------------------------------
@@ -229,8 +230,9 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
 
     Damage met part-way (a truncated file, an undecodable topic) does not lose the frames
     before it: they are returned with ``Analysis.fault`` set. Ctrl-C does the same with
-    ``Analysis.interrupted``. ``sink`` sees every analysed frame as it goes (one process only:
-    with ``jobs > 1`` the frames are analysed elsewhere and it is not called).
+    ``Analysis.interrupted``. ``sink`` sees every analysed frame as it goes where they are
+    analysed in this process: with ``jobs > 1`` and a recording split into windows
+    (``Analysis.windows`` > 1) they are analysed elsewhere and it is not called.
     """
     opts = options or AnalysisOptions()
     check_selection(opts)
@@ -281,7 +283,7 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
             from frontdiag.parallel import run_windows
 
             run = run_windows(path, rec, choice, opts, intr, progress=progress,
-                              expected=expected)
+                              expected=expected, sink=sink)
         else:
             run = run_stream(rec, choice, opts, intr, progress=progress, expected=expected,
                              sink=sink)
@@ -305,7 +307,7 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
         table.attrs["manifest"] = manifest
     return Analysis(table=table, manifest=manifest, choice=choice, intrinsics=intr, notes=notes,
                     fault=fault, interrupted=run.interrupted, verdicts=verdicts,
-                    ruleset=ruleset)
+                    ruleset=ruleset, windows=run.windows)
 
 
 def _read_intervals_for(ruleset: Any, opts: AnalysisOptions) -> AnalysisOptions:

@@ -31,6 +31,7 @@ from frontdiag.io.readers import Recording, open_recording
 from frontdiag.io.topics import TopicChoice
 from frontdiag.records import Intrinsics
 from frontdiag.runner import (
+    FrameSink,
     FrameWindow,
     ProgressFn,
     SensorStream,
@@ -193,8 +194,10 @@ def reader_fault(path: Path, rec: Recording, run: StreamRun) -> None:
 
 def run_windows(path: Path, rec: Recording, choice: TopicChoice, opts: Any,
                 intr: Intrinsics | None, *, progress: ProgressFn | None = None,
-                expected: int | None = None) -> StreamRun:
-    """The pass of :func:`frontdiag.runner.run_stream`, computed by ``opts.jobs`` processes."""
+                expected: int | None = None, sink: FrameSink | None = None) -> StreamRun:
+    """The pass of :func:`frontdiag.runner.run_stream`, computed by ``opts.jobs`` processes
+    (``StreamRun.windows`` says how many camera windows); ``sink`` sees the frames only where
+    the recording is analysed in this process, in one window."""
     from frontdiag.camera.frontend import CameraParams
 
     n_cam = next((t.count for t in rec.topics if t.topic == choice.camera), None)
@@ -205,7 +208,8 @@ def run_windows(path: Path, rec: Recording, choice: TopicChoice, opts: Any,
         # nothing to split (no camera, a short one, or a frame budget counted from the start),
         # or a video, whose pictures need the ones before them back to a keyframe
         log.info("one window: analysing %s in one process", path)
-        return run_stream(rec, choice, opts, intr, progress=progress, expected=expected)
+        return run_stream(rec, choice, opts, intr, progress=progress, expected=expected,
+                          sink=sink)
     cam_choice = replace(choice, lidar=None, lidar_type=None, odometry=None)
     lid_choice = replace(choice, camera=None, camera_type=None, camera_info=None)
     runs: list[StreamRun | None] = [None] * len(windows)
@@ -252,7 +256,7 @@ def run_windows(path: Path, rec: Recording, choice: TopicChoice, opts: Any,
         fault = fault or lid_run.fault
         interrupted = interrupted or lid_run.interrupted
     return StreamRun(rows, cam_stream, lid_stream, fault=fault,
-                     interrupted=interrupted or cut)
+                     interrupted=interrupted or cut, windows=len(windows))
 
 
 def _stitch(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,

@@ -207,6 +207,7 @@ class StreamRun:
     keys: dict[int, Any] = field(default_factory=dict)  # camera frame -> state key after it
     stopped_at: int | None = None  # camera frame after which ``until`` stopped the pass
     end_state: Any = None  # camera hand-over state at the end (when asked)
+    windows: int = 1  # camera windows analysed in parallel (frontdiag.parallel)
 
 
 def camera_key(front: Any, stream: SensorStream) -> Any:

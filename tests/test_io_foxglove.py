@@ -101,6 +101,7 @@ def test_a_video_is_read_in_one_process_whatever_jobs_says(tmp_path: Path) -> No
     one = run_analysis(path, AnalysisOptions(jobs=1))
     two = run_analysis(path, AnalysisOptions(jobs=2))
     assert any("is video" in n and "one process" in n for n in two.notes)
+    assert two.windows == 1  # so its frames went through this process (annotations)
     assert _metrics(one.table).equals(_metrics(two.table))
     assert len(one.table) == 140
 

@@ -46,6 +46,25 @@ def test_parallel_table_equals_serial(tmp_path: Path, shift: int) -> None:
     assert serial.verdicts.episodes.equals(par.verdicts.episodes)
 
 
+def test_frames_reach_the_sink_wherever_they_are_analysed_in_this_process(tmp_path: Path
+                                                                         ) -> None:
+    """--jobs 2 on a recording too short to split runs in one window here: its frames reach
+    the sink (the image annotations of diagnostics.mcap); split into windows they do not, and
+    ``windows`` says which happened."""
+    seen: list[int] = []
+
+    def sink(row: dict, annotation: object, record: object) -> None:
+        seen.append(int(row["frame"]))
+
+    short = write_recording(tmp_path / "short.mcap", "mcap", n=30)
+    res = run_analysis(short, AnalysisOptions(jobs=2), sink=sink)
+    assert res.windows == 1 and seen == list(range(30))
+    seen.clear()
+    long = write_recording(tmp_path / "long.mcap", "mcap", n=150)
+    res = run_analysis(long, AnalysisOptions(jobs=2), sink=sink)
+    assert res.windows == 2 and seen == []
+
+
 def test_rules_reading_longer_intervals_raise_the_two_interval_threshold(tmp_path: Path) -> None:
     from frontdiag.api import _read_intervals_for
     from frontdiag.verdicts import load_ruleset

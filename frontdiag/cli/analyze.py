@@ -251,7 +251,7 @@ def analyze_cmd(
     if diag is not None:
         diag.finish(result.table, result.verdicts, result.ruleset)
         written.append(diag.path)
-        if jobs > 1 and not quiet and not as_json:
+        if result.windows > 1 and not quiet and not as_json:
             err.print("[yellow]note[/]: diagnostics.mcap has the per-frame diagnostics and "
                       "episodes; the image annotations and LiDAR points are written by a "
                       "single-process run (--jobs 1)")
