@@ -259,3 +259,21 @@ def test_a_foxglove_laser_scan_reads_like_sensor_msgs(tmp_path: Path) -> None:
     assert (a["n_points"] == b["n_points"]).all()
     for c in ("icp_fitness", "icp_rmse_m"):
         assert np.allclose(a[c], b[c], rtol=1e-3, atol=1e-6, equal_nan=True), c
+
+
+@pytest.mark.parametrize("pix_fmt", ["yuv420p", "yuvj420p", "yuv444p", "yuv420p10le"])
+def test_luma_is_ffmpegs_grey_conversion(pix_fmt: str) -> None:
+    """The Y plane, stretched from video range where the format is in it, equals swscale's
+    conversion to grey; a format with no 8-bit Y plane goes through swscale itself."""
+    import av
+
+    from frontdiag.io.images import luma
+
+    img = frame(3, size=(160, 120))
+    ramp = np.tile(np.linspace(0, 255, 160).astype(np.uint8), (120, 1))
+    for src in (img, ramp):
+        f = av.VideoFrame.from_ndarray(src, format="gray").reformat(format=pix_fmt)
+        want = f.to_ndarray(format="gray")
+        got = luma(f)
+        assert got.shape == (120, 160) and got.dtype == np.uint8 and got.flags.c_contiguous
+        assert np.array_equal(got, want)
