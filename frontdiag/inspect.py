@@ -14,6 +14,7 @@ from frontdiag.io.images import IMAGE_TYPES
 from frontdiag.io.readers import open_recording
 from frontdiag.io.topics import LIDAR_TYPES, TopicChoice, choose_topics
 from frontdiag.lidar.livox import LIVOX_TYPES, header_stamp, livox_point_count
+from frontdiag.lidar.velodyne import VELODYNE_TYPES, read_scan
 
 SENSOR_TYPES = (*IMAGE_TYPES, *LIDAR_TYPES)
 
@@ -77,6 +78,8 @@ def inspect_recording(path: Path | str, gap_factor: float = 3.0) -> RecordingRep
                         msg = header_stamp(raw.data, enc)
                         if raw.topic not in detail:
                             detail[raw.topic] = f"Livox, {livox_point_count(raw.data, enc)} pts"
+                    elif raw.msgtype in VELODYNE_TYPES:  # 1206-byte packets, not objects
+                        msg = read_scan(raw.data, encodings.get(raw.topic) or "cdr", raw.topic)
                     else:
                         msg = rec.deserialize(raw)
                     st = msg.header.stamp
@@ -147,6 +150,8 @@ def _detail(msg: Any, msgtype: str) -> str:
         return f"{msg.width * msg.height} pts ({names})"
     if msgtype.endswith("LaserScan"):
         return f"{len(msg.ranges)} ranges"
+    if msgtype.endswith("VelodyneScan"):
+        return f"Velodyne, {len(msg.packets)} packets"
     return ""
 
 

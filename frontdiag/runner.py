@@ -80,6 +80,7 @@ class SensorStream:
         self.owned = True  # the current message counts (not warm-up)
         self.draining = False  # past the window: frames only complete rows already made
         self.sink: FrameSink | None = None
+        self.decoders: dict[str, Any] = {}  # per-topic decoder state (Velodyne's sensor model)
 
     def analyse(self, record: CameraFrame | LidarScan, frontend: Any, sensor: str,
                 rec_start: int) -> dict[str, Any]:

@@ -23,6 +23,7 @@ class StampSink(Protocol):
     """What decoding reports to: the message's position, its stamp, and skipped messages."""
 
     index: int
+    decoders: dict[str, Any]  # per-topic decoder state a message type needs (Velodyne)
 
     def stamp(self, msg: Any, log_ns: int) -> int: ...
 
@@ -75,9 +76,19 @@ def decode_camera(rec: Recording, raw: RawMessage, stream: StampSink,
 def decode_lidar(rec: Recording, raw: RawMessage, stream: StampSink) -> LidarScan | None:
     from frontdiag.lidar.decode import decode_laserscan, decode_pointcloud2
     from frontdiag.lidar.livox import LIVOX_TYPES, decode_livox, header_stamp
+    from frontdiag.lidar.velodyne import VELODYNE_TYPES, VelodyneDecoder, read_scan
 
     t0 = time.perf_counter()
     try:
+        if raw.msgtype in VELODYNE_TYPES:  # raw packets: the decoder keeps the sensor model
+            enc = next((t.encoding for t in rec.topics if t.topic == raw.topic), "cdr")
+            msg = read_scan(raw.data, enc or "cdr", raw.topic)
+            t_ns = stream.stamp(msg, raw.log_ns)
+            dec = stream.decoders.get("velodyne")
+            if dec is None:
+                dec = stream.decoders["velodyne"] = VelodyneDecoder(raw.topic)
+            scan = dec(msg, index=stream.index, log_ns=raw.log_ns, t_ns=t_ns)
+            return replace(scan, ms_decode=(time.perf_counter() - t0) * 1e3)
         if raw.msgtype in LIVOX_TYPES:  # read from the bytes: 30-40 ms a scan saved
             enc = next((t.encoding for t in rec.topics if t.topic == raw.topic), "cdr")
             scan = decode_livox(raw.data, enc or "cdr", topic=raw.topic, index=stream.index,

@@ -14,6 +14,8 @@ LIDAR_TYPES = ("sensor_msgs/msg/PointCloud2", "sensor_msgs/msg/LaserScan",
                # Livox drivers' own scan message (frontdiag/lidar/livox.py)
                "livox_ros_driver/msg/CustomMsg", "livox_ros_driver2/msg/CustomMsg",
                "livox_interfaces/msg/CustomMsg",
+               # the Velodyne driver's raw packets (frontdiag/lidar/velodyne.py)
+               "velodyne_msgs/msg/VelodyneScan",
                *foxglove.LIDAR_TYPES)
 ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
 _NOT_ODOMETRY = ("ground_truth", "groundtruth", "/gt", "truth", "mocap", "vicon")
@@ -134,8 +136,9 @@ def choose_topics(topics: list[TopicInfo], *, camera_topic: str | None = None,
                                   "frames anyway")
         if use_camera and use_lidar:
             raise TopicError("no usable sensor topics: the recording has no sensor_msgs/Image, "
-                             "CompressedImage, PointCloud2, LaserScan, Livox CustomMsg or "
-                             "Foxglove image, video, point cloud or scan messages",
+                             "CompressedImage, PointCloud2, LaserScan, Livox CustomMsg, "
+                             "VelodyneScan or Foxglove image, video, point cloud or scan "
+                             "messages",
                              hint="run `frontdiag info LOG` to see what it holds")
         raise TopicError("nothing left to analyze with the sensors that were switched off")
     return TopicChoice(camera=cam.topic if cam else None, camera_type=cam.msgtype if cam else None,

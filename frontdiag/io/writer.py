@@ -36,16 +36,18 @@ _TS_ROS2: Typestore | None = None
 def typestore(ros_version: int) -> Typestore:
     """Shared typestores (building one costs ~50 ms)."""
     global _TS_ROS1, _TS_ROS2
-    from frontdiag.lidar.livox import register_types
+    from frontdiag.lidar import livox, velodyne
 
     if ros_version == 1:
         if _TS_ROS1 is None:
             _TS_ROS1 = get_typestore(Stores.ROS1_NOETIC)
-            register_types(_TS_ROS1, 1)
+            livox.register_types(_TS_ROS1, 1)
+            velodyne.register_types(_TS_ROS1, 1)
         return _TS_ROS1
     if _TS_ROS2 is None:
         _TS_ROS2 = get_typestore(Stores.ROS2_HUMBLE)
-        register_types(_TS_ROS2, 2)
+        livox.register_types(_TS_ROS2, 2)
+        velodyne.register_types(_TS_ROS2, 2)
     return _TS_ROS2
 
 
