@@ -28,13 +28,13 @@ import argparse
 import sys
 import tempfile
 import time
-from fractions import Fraction
 from pathlib import Path
 
 import cv2
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # validation/
 import real_recordings
 
 cv2.setNumThreads(1)
@@ -63,22 +63,13 @@ def frames_of(path: Path, n: int) -> tuple[list[np.ndarray], list[int], np.ndarr
 
 
 def h264(frames: list[np.ndarray]) -> list[bytes]:
-    import av
+    """CRF 23, a keyframe every 30 frames (validation/video.py's encoder)."""
+    from validation.video import Encoder
 
     h, w = frames[0].shape
-    enc = av.CodecContext.create("libx264", "w")
-    enc.width, enc.height, enc.pix_fmt = w, h, "yuv420p"
-    enc.time_base = Fraction(1, 30)
-    enc.options = {"preset": "medium", "tune": "zerolatency", "crf": "23",
-                   "x264-params": "keyint=30:min-keyint=30:bframes=0:repeat-headers=1"}
-    pk: list[bytes] = []
-    for i, img in enumerate(frames):
-        f = av.VideoFrame.from_ndarray(np.ascontiguousarray(img), format="gray")
-        f = f.reformat(format="yuv420p")
-        f.pts = i
-        pk += [bytes(p) for p in enc.encode(f)]
-    pk += [bytes(p) for p in enc.encode(None)]
-    return pk
+    enc = Encoder(w, h, crf=23, keyint=30)
+    pk = [p for img in frames for p in enc(img)]
+    return pk + enc.flush()
 
 
 def write_pair(tmp: Path, name: str, frames: list[np.ndarray], stamps: list[int],

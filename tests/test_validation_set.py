@@ -305,3 +305,20 @@ def test_a_black_night_street_is_a_detection_failure() -> None:
     black = frames["rules"].map(lambda r: "FD-DET-003" in r).tolist()
     assert black == [False] * 8 + [True] * 2
     assert (frames["keypoint_fill"].iloc[8:] >= 0.3).all()
+
+
+def test_a_recording_as_h264_video_keeps_its_stamps_and_calibration(tmp_path: Path) -> None:
+    """validation/video.py (score.py --video): the same frames as Foxglove CompressedVideo,
+    stamped as before (so the labels still apply), with the calibration."""
+    from recording_factory import write_recording
+
+    from frontdiag.api import analyze
+    from validation.video import to_h264
+
+    src = write_recording(tmp_path / "src.mcap", "mcap", n=12)
+    video = to_h264(src, tmp_path / "v.mcap", crf=18, keyint=5)
+    a, b = analyze(src), analyze(video)
+    assert b["t_ns"].tolist() == a["t_ns"].tolist()
+    assert b.attrs["manifest"]["topics"]["camera"] == "/camera/video"
+    assert b.attrs["manifest"]["intrinsics"]["K"] == a.attrs["manifest"]["intrinsics"]["K"]
+    assert np.abs(b["mean_intensity"] - a["mean_intensity"]).max() < 1.0

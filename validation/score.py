@@ -5,6 +5,7 @@
     python validation/score.py --split all --json   # both halves, machine-readable
     python validation/score.py --data DIR --per-recording
     python validation/score.py --overrides try.toml   # a threshold change, tried on dev
+    python validation/score.py --video 23           # every camera re-encoded as H.264 video
 
 Runs ``frontdiag analyze`` (the Python API, default rules) on every recording of the chosen
 half listed in ``validation/manifest.json`` and built by ``validation/build.py``, scores each
@@ -54,15 +55,27 @@ def recordings(manifest: dict[str, Any], split: str, data: Path) -> list[tuple[s
 
 
 def score_recording(path: Path, conditions: Sequence[str] = CAMERA_CONDITIONS,
-                    overrides: Path | None = None) -> EvalReport:
+                    overrides: Path | None = None, video_crf: int | None = None) -> EvalReport:
     """Analyse one built recording with the default rules (thresholds changed by an
-    ``overrides`` file, the format of ``frontdiag analyze --overrides``) and score it."""
+    ``overrides`` file, the format of ``frontdiag analyze --overrides``) and score it; with
+    ``video_crf``, its camera re-encoded as H.264 at that CRF (validation/video.py)."""
+    import tempfile
+
     from frontdiag.api import analyze
 
     if not path.exists():
         raise ConfigError(f"recording not found: {path}",
                           hint="build the validation set first: python validation/build.py")
     labels = read_labels(labels_path_for(path))
+    if video_crf is not None:
+        from validation.video import to_h264
+
+        with tempfile.TemporaryDirectory() as tmp:
+            video = to_h264(path, Path(tmp) / f"{path.name}.h264.mcap", crf=video_crf)
+            frames = normalise_frames(
+                analyze(video, rules_overrides=str(overrides) if overrides else None),
+                source=str(path))
+        return score(frames, labels, conditions=conditions)
     frames = normalise_frames(
         analyze(path, rules_overrides=str(overrides) if overrides else None), source=str(path))
     return score(frames, labels, conditions=conditions)
@@ -83,6 +96,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--overrides", type=Path, default=None,
                     help="a rule-overrides TOML (as for frontdiag analyze --overrides), to try "
                          "a threshold on the dev half")
+    ap.add_argument("--video", type=int, default=None, metavar="CRF",
+                    help="score each recording's camera re-encoded as H.264 video at this "
+                         "CRF (23: a camera streaming at a few Mbit/s; higher is coarser)")
     a = ap.parse_args(argv)
     recs = recordings(load_manifest(a.manifest), a.split, a.data)
     if a.only:
@@ -95,7 +111,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     reports: dict[str, EvalReport] = {}
     for i, (name, path) in enumerate(recs, 1):
         print(f"[{i}/{len(recs)}] {name}", file=sys.stderr)
-        reports[name] = score_recording(path, overrides=a.overrides)
+        reports[name] = score_recording(path, overrides=a.overrides, video_crf=a.video)
     pooled = pool(reports.values())
     if a.json:
         print(json.dumps({"split": a.split, "pooled": pooled.as_dict(),
@@ -106,7 +122,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         for name, rep in reports.items():
             print(f"== {name}")
             print(format_pooled(pool([_labelled_only(rep)])) + "\n")
-    print(f"== {a.split}: {len(recs)} recordings, {pooled.frames} frames")
+    video = "" if a.video is None else f", as H.264 video at CRF {a.video}"
+    print(f"== {a.split}: {len(recs)} recordings, {pooled.frames} frames{video}")
     print(format_pooled(_labelled_only(pooled)))
     return 0
 
