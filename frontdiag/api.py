@@ -45,6 +45,7 @@ from frontdiag.runner import (
     SensorStream,
     StreamRun,
     TopicStats,
+    and_last,
     iter_camera_frames,
     run_stream,
 )
@@ -355,7 +356,7 @@ def _stream_notes(path: Path, rec: Recording, run: StreamRun,
         if st.analysed == 0 and st.skipped_undecodable and fault is None:
             fault = DecodeError(stream.topic, "message",
                                 f"no message could be decoded ({st.skipped_undecodable} "
-                                f"skipped; first: {st.first_error})")
+                                f"skipped; first: {st.first_error}{and_last(st)})")
         if st.non_monotonic_stamps:
             notes.append(f"{stream.topic}: {st.non_monotonic_stamps} non-monotonic header "
                          "stamps")
@@ -364,7 +365,7 @@ def _stream_notes(path: Path, rec: Recording, run: StreamRun,
                          "used)")
         if st.skipped_undecodable:
             notes.append(f"{stream.topic}: {st.skipped_undecodable} undecodable messages "
-                         f"skipped (first: {st.first_error})")
+                         f"skipped (first: {st.first_error}{and_last(st)})")
         if st.gaps:
             notes.append(f"{stream.topic}: {st.gaps} gap(s) in the recording; the frontend "
                          f"started afresh after each (rows with status {GAP_STATUS})")

@@ -325,6 +325,7 @@ def _merge_counts(acc: SensorStream | None, cur: SensorStream | None) -> SensorS
         messages=a.messages + b.messages, analysed=a.analysed + b.analysed,
         skipped_undecodable=a.skipped_undecodable + b.skipped_undecodable,
         first_error=a.first_error if a.first_error is not None else b.first_error,
+        last_error=b.last_error if b.last_error is not None else a.last_error,
         non_monotonic_stamps=a.non_monotonic_stamps + b.non_monotonic_stamps,
         zero_stamps=a.zero_stamps + b.zero_stamps,
         last_t_ns=b.last_t_ns if b.last_t_ns is not None else a.last_t_ns,

@@ -46,6 +46,7 @@ class TopicStats:
     analysed: int = 0
     skipped_undecodable: int = 0
     first_error: str | None = None
+    last_error: str | None = None  # the latest reason (said where it differs from the first)
     non_monotonic_stamps: int = 0
     zero_stamps: int = 0
     last_t_ns: int | None = None
@@ -148,6 +149,7 @@ class SensorStream:
         self.stats.skipped_undecodable += 1
         if self.stats.first_error is None:
             self.stats.first_error = str(exc)
+        self.stats.last_error = str(exc)
 
 
 _FOREVER_S = 1e9  # seconds (32 years): a bound that keeps nanosecond times in 64 bits
@@ -455,7 +457,13 @@ def check_all_failed(stream: SensorStream) -> None:
     if st.analysed == 0 and st.skipped_undecodable >= 10:
         raise DecodeError(stream.topic, "message",
                           f"the first {st.skipped_undecodable} messages could not be decoded "
-                          f"({st.first_error})")
+                          f"({st.first_error}{and_last(st)})")
+
+
+def and_last(st: TopicStats) -> str:
+    """``; last: ...`` where a later message was skipped for another reason (a video that
+    holds its first pictures back says why only at the later ones)."""
+    return f"; last: {st.last_error}" if st.last_error not in (None, st.first_error) else ""
 
 
 def make_row(metrics: dict[str, Any], rec: CameraFrame | LidarScan, sensor: str,
