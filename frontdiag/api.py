@@ -33,7 +33,7 @@ from frontdiag.io.camera_info import (
     scaled_K,
 )
 from frontdiag.io.decode import header_stamp_ns, odometry_pose
-from frontdiag.io.foxglove import is_video
+from frontdiag.io.images import is_video
 from frontdiag.io.readers import Recording, open_recording, recording_size
 from frontdiag.io.topics import TopicChoice, choose_topics
 from frontdiag.metrics import CAMERA_COLUMNS, LIDAR_COLUMNS

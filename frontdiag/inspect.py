@@ -10,7 +10,7 @@ import numpy as np
 
 from frontdiag.errors import TopicError
 from frontdiag.io import foxglove
-from frontdiag.io.images import IMAGE_TYPES
+from frontdiag.io.images import IMAGE_TYPES, is_video, video_format
 from frontdiag.io.readers import open_recording
 from frontdiag.io.topics import LIDAR_TYPES, TopicChoice, choose_topics
 from frontdiag.lidar.livox import LIVOX_TYPES, header_stamp, livox_point_count
@@ -139,8 +139,8 @@ def inspect_recording(path: Path | str, gap_factor: float = 3.0) -> RecordingRep
 
 def _detail(msg: Any, msgtype: str) -> str:
     msgtype = foxglove.ros_type(msgtype)
-    if msgtype in foxglove.VIDEO_TYPES:
-        return f"video {msg.format}"
+    if is_video(msgtype):
+        return f"video {video_format(msg, msgtype)}"
     if msgtype.endswith("/Image"):
         return f"{msg.width}x{msg.height} {msg.encoding}"
     if msgtype.endswith("CompressedImage"):

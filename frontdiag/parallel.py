@@ -26,7 +26,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from frontdiag.io.foxglove import is_video
+from frontdiag.io.images import is_video
 from frontdiag.io.readers import Recording, open_recording
 from frontdiag.io.topics import TopicChoice
 from frontdiag.records import Intrinsics

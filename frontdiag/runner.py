@@ -21,8 +21,7 @@ from typing import Any
 
 from frontdiag.errors import ConfigError, DecodeError, FrontdiagError
 from frontdiag.io.decode import decode_camera, decode_lidar, header_stamp_ns, odometry_pose
-from frontdiag.io.foxglove import is_video
-from frontdiag.io.images import GrayConverter
+from frontdiag.io.images import GrayConverter, is_video
 from frontdiag.io.readers import Recording
 from frontdiag.io.topics import TopicChoice
 from frontdiag.records import CameraFrame, Intrinsics, LidarScan

@@ -277,3 +277,65 @@ def test_luma_is_ffmpegs_grey_conversion(pix_fmt: str) -> None:
         got = luma(f)
         assert got.shape == (120, 160) and got.dtype == np.uint8 and got.flags.c_contiguous
         assert np.array_equal(got, want)
+
+
+def test_a_video_with_b_frames_is_refused_not_misread(tmp_path: Path) -> None:
+    """B-frames make pictures come out after later messages, each message's stamp then not its
+    picture's: refused with the reason."""
+    from fractions import Fraction
+
+    import av
+
+    enc = av.CodecContext.create("libx264", "w")
+    enc.width, enc.height, enc.pix_fmt = 160, 120, "yuv420p"
+    enc.time_base = Fraction(1, 30)
+    enc.options = {"preset": "ultrafast",
+                   "x264-params": "keyint=10:bframes=2:repeat-headers=1:threads=1"}
+    packets: list[bytes] = []
+    for i, img in enumerate(_video_frames(20)):
+        f = av.VideoFrame.from_ndarray(img, format="gray").reformat(format="yuv420p")
+        f.pts = i
+        packets += [bytes(p) for p in enc.encode(f)]
+    packets += [bytes(p) for p in enc.encode(None)]
+    path = write_protobuf(tmp_path / "b.mcap", iter(
+        ("/cam/video", "CompressedVideo", T0 + i * DT,
+         {"frame_id": "cam", "data": p, "format": "h264"}) for i, p in enumerate(packets)))
+    res = run_analysis(path, AnalysisOptions(intrinsics="120,120,80,60"))
+    assert len(res.table) <= 2  # at most the pictures that came out in their own message
+    assert res.fault is not None and "B-frames" in str(res.fault)
+
+
+def test_ffmpeg_image_transport_packets(tmp_path: Path) -> None:
+    """ffmpeg_image_transport_msgs/msg/FFMPEGPacket (ROS 2): the codec from the encoder's
+    name, the stamp from the header."""
+    from mcap_ros2.writer import Writer
+
+    frames = _video_frames(12)
+    packets = h264_packets(frames, keyint=6)
+    path = tmp_path / "ffmpeg.mcap"
+    with open(path, "wb") as fh:
+        w = Writer(fh)
+        schema = w.register_msgdef(
+            "ffmpeg_image_transport_msgs/msg/FFMPEGPacket",
+            "std_msgs/Header header\nint32 width\nint32 height\nstring encoding\nuint64 pts\n"
+            "uint8 flags\nbool is_bigendian\nuint8[] data\n"
+            "================================================================================\n"
+            "MSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n"
+            "================================================================================\n"
+            "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n")
+        for i, pkt in enumerate(packets):
+            t = T0 + i * DT
+            w.write_message("/cam/image_raw/ffmpeg", schema, {
+                "header": {"stamp": {"sec": t // 10**9, "nanosec": t % 10**9},
+                           "frame_id": "cam"},
+                "width": 160, "height": 120, "encoding": "h264_nvenc", "pts": i,
+                "flags": int(i % 6 == 0), "is_bigendian": False, "data": pkt},
+                log_time=t, publish_time=t)
+        w.finish()
+    from frontdiag.inspect import inspect_recording
+
+    assert inspect_recording(path).topics[0].detail == "video h264"
+    df = analyze(path, intrinsics="120,120,80,60")
+    assert len(df) == 12 and (df["t_ns"].diff().dropna() == DT).all()
+    assert np.abs(df["mean_intensity"].to_numpy()
+                  - np.array([f.mean() for f in frames])).max() < 1.0

@@ -64,10 +64,6 @@ def ros_type(msgtype: str) -> str:
     return msgtype if k is None else _ROS_EQUIVALENT[k]
 
 
-def is_video(msgtype: str) -> bool:
-    return kind(msgtype) == "CompressedVideo"
-
-
 # --------------------------------------------------------------------------------------------
 # decoding the container's bytes
 # --------------------------------------------------------------------------------------------

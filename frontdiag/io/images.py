@@ -16,8 +16,30 @@ import numpy as np
 from frontdiag.errors import DecodeError
 from frontdiag.io import foxglove
 
+# ffmpeg_image_transport's packets (ROS 1 and 2): one encoded picture a message, the encoder
+# named in ``encoding`` (libx264, h264_nvenc, hevc_vaapi, ...)
+FFMPEG_PACKET_TYPES = ("ffmpeg_image_transport_msgs/msg/FFMPEGPacket",)
+VIDEO_TYPES = (*foxglove.VIDEO_TYPES, *FFMPEG_PACKET_TYPES)
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage",
-               *foxglove.IMAGE_TYPES)
+               *foxglove.IMAGE_TYPES, *FFMPEG_PACKET_TYPES)
+
+
+def is_video(msgtype: str) -> bool:
+    """Whether a message type carries video, whose pictures depend on earlier messages."""
+    return msgtype in VIDEO_TYPES
+
+
+def video_format(msg: Any, msgtype: str) -> str:
+    """The codec of a video message: Foxglove's ``format`` (h264, h265, vp9, av1), or the one
+    an ffmpeg_image_transport packet's encoder name says (``h264_nvenc`` -> h264)."""
+    if msgtype not in FFMPEG_PACKET_TYPES:
+        return str(msg.format).strip().lower()
+    enc = str(msg.encoding).strip().lower()
+    for key, fmt in (("264", "h264"), ("265", "h265"), ("hevc", "h265"), ("av1", "av1"),
+                     ("vp9", "vp9")):
+        if key in enc:
+            return fmt
+    return enc
 
 # ROS encoding -> (channels, bytes per channel, cv2 conversion to grey or None)
 _ENCODINGS: dict[str, tuple[int, int, int | None]] = {
@@ -60,8 +82,8 @@ class GrayConverter:
 
     def __call__(self, msg: Any, msgtype: str) -> tuple[np.ndarray, str]:
         msgtype = foxglove.ros_type(msgtype)
-        if msgtype in foxglove.VIDEO_TYPES:
-            fmt = str(msg.format).strip().lower()
+        if msgtype in VIDEO_TYPES:
+            fmt = video_format(msg, msgtype)
             if self.video is None:
                 self.video = VideoDecoder(self.topic, fmt)
             return self.video(msg.data, fmt), f"video/{fmt or '?'}"
@@ -125,6 +147,9 @@ class GrayConverter:
 
 
 NO_KEYFRAME = "no keyframe yet: a video's pictures are decoded from its first keyframe on"
+REORDERED = ("the video has B-frames (pictures come out after later messages), so a message's "
+             "stamp is not its picture's; frontdiag reads video encoded without B-frames, as "
+             "Foxglove's CompressedVideo requires (x264: bframes=0)")
 
 # Foxglove CompressedVideo formats -> FFmpeg decoder names
 VIDEO_CODECS = {"h264": "h264", "h265": "hevc", "hevc": "hevc", "vp9": "vp9", "av1": "av1"}
@@ -137,13 +162,15 @@ class VideoDecoder:
     (no picture waits for a later one), so each message gives its own picture at once; the
     decoder runs on one thread, since frame threading would hold pictures back. Messages before
     the first keyframe, or whose keyframe was lost, give no picture and are skipped with that
-    reason, as undecodable messages are.
+    reason, as undecodable messages are. Each packet carries its message's number as its pts,
+    so a stream that reorders pictures (B-frames) is seen, not misread: its messages are
+    skipped with that reason.
     """
 
     def __init__(self, topic: str, fmt: str) -> None:
         codec = VIDEO_CODECS.get(fmt)
         if codec is None:
-            raise DecodeError(topic, "format", f"unsupported video format {fmt!r} (supported: "
+            raise DecodeError(topic, "format", f"unsupported video codec {fmt!r} (supported: "
                                                f"{', '.join(VIDEO_CODECS)})")
         import av
 
@@ -153,6 +180,7 @@ class VideoDecoder:
         self._ctx: Any = av.CodecContext.create(codec, "r")  # a VideoCodecContext
         self._ctx.thread_type = "NONE"
         self.pictures = 0
+        self.sent = 0
 
     def __call__(self, data: Any, fmt: str) -> np.ndarray:
         if fmt != self.fmt:
@@ -161,19 +189,26 @@ class VideoDecoder:
         buf = bytes(data)
         if not buf:
             raise DecodeError(self.topic, "data", "empty video message")
+        packet = self._av.Packet(buf)
+        packet.pts = self.sent  # each picture comes out with the number of its message
+        self.sent += 1
         try:
-            frames = self._ctx.decode(self._av.Packet(buf))
+            frames = self._ctx.decode(packet)
         except self._av.error.FFmpegError as exc:
             if self.pictures == 0:
                 raise DecodeError(self.topic, "data", NO_KEYFRAME) from None
             raise DecodeError(self.topic, "data",
                               f"undecodable {self.fmt} picture ({exc.strerror or exc})") from None
-        if not frames:
+        mine = [f for f in frames if f.pts == packet.pts]
+        if frames and not mine:
+            # a picture of an earlier message: the stream reorders (B-frames), so a message's
+            # stamp is not its picture's
+            raise DecodeError(self.topic, "data", REORDERED)
+        if not mine:
             raise DecodeError(self.topic, "data", NO_KEYFRAME if self.pictures == 0
                               else f"no {self.fmt} picture in the message")
         self.pictures += 1
-        # the last picture, should a message hold more than Foxglove allows
-        return luma(frames[-1])
+        return luma(mine[-1])
 
 
 # 8-bit pixel formats whose first plane is the luma Y, in limited (video) range unless the

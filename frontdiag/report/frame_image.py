@@ -18,7 +18,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from frontdiag.io.foxglove import is_video
+from frontdiag.io.images import is_video
 from frontdiag.records import (
     KP_INLIER,
     KP_OUTLIER,
