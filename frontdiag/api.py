@@ -276,10 +276,6 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
         counts = {t.topic: t.count for t in topic_infos}
         expected = sum(_expected(counts.get(t), opts, rec) or 0
                        for t in (choice.camera, choice.lidar) if t)
-        if opts.jobs > 1 and choice.camera_type and is_video(choice.camera_type):
-            notes.append(f"--jobs {opts.jobs}: {choice.camera} is video, whose pictures depend "
-                         "on the ones before them back to a keyframe, so it is read in one "
-                         "process")
         if opts.jobs > 1:
             from frontdiag.parallel import run_windows
 

@@ -312,7 +312,9 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
         cam_stream = SensorStream(choice.camera, opts, frames)
         conv = GrayConverter(choice.camera)
         video = bool(choice.camera_type) and is_video(choice.camera_type or "")
-        if frames is not None and frames.warm_from > 0:
+        # a window that starts later scales mono16 as a run from the start does; a video's
+        # decoder instead sees every message from the start (feed_video)
+        if frames is not None and frames.warm_from > 0 and not video:
             prime_converter(rec, choice.camera, conv, opts)
         if resume is not None:
             _restore_camera(cam_front, cam_stream, resume)
