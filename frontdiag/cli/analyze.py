@@ -14,9 +14,12 @@ HELP = """Re-run the camera (and LiDAR) frontend on a recording, frame by frame.
 
 Reads ROS 1 .bag (or a folder of split bags NAME_0.bag, NAME_1.bag, ...),
 ROS 2 bag folders (.db3 or .mcap storage), standalone .db3/.mcap files and
-plain MCAP (cdr or ros1 encoding). The only image topic (and the only LiDAR
-topic) is taken automatically; with several, frontdiag prints the exact
---camera-topic / --lidar-topic to pass.
+plain MCAP (cdr or ros1 encoding, or Foxglove's schemas in Protobuf or
+JSON). Cameras: Image, CompressedImage, and H.264/H.265/VP9/AV1 video
+(Foxglove CompressedVideo, ffmpeg_image_transport). LiDAR: PointCloud2,
+LaserScan, Livox CustomMsg, Velodyne packets. The only image topic (and
+the only LiDAR topic) is taken automatically; with several, frontdiag
+prints the exact --camera-topic / --lidar-topic to pass.
 
 Examples:
 
