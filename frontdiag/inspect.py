@@ -10,7 +10,7 @@ import numpy as np
 
 from frontdiag.errors import TopicError
 from frontdiag.io import foxglove
-from frontdiag.io.images import IMAGE_TYPES, is_video, video_format
+from frontdiag.io.images import IMAGE_TYPES, is_keyframe, is_video, video_format
 from frontdiag.io.readers import open_recording
 from frontdiag.io.topics import LIDAR_TYPES, TopicChoice, choose_topics
 from frontdiag.lidar.livox import LIVOX_TYPES, header_stamp, livox_point_count
@@ -69,6 +69,7 @@ def inspect_recording(path: Path | str, gap_factor: float = 3.0) -> RecordingRep
         stamps: dict[str, list[int]] = {t: [] for t in sensor_topics}
         detail: dict[str, str] = {}
         encodings = {t.topic: t.encoding for t in infos}
+        keys: dict[str, list[bool | None]] = {}  # video topics: keyframe or not, per message
         for raw in rec.messages([t.topic for t in infos]):
             times[raw.topic].append(raw.log_ns)
             if raw.topic in sensor_topics:
@@ -86,6 +87,9 @@ def inspect_recording(path: Path | str, gap_factor: float = 3.0) -> RecordingRep
                     stamps[raw.topic].append(int(st.sec) * 1_000_000_000 + int(st.nanosec))
                     if raw.topic not in detail:
                         detail[raw.topic] = _detail(msg, raw.msgtype)
+                    if is_video(raw.msgtype):
+                        key = is_keyframe(msg.data, video_format(msg, raw.msgtype))
+                        keys.setdefault(raw.topic, []).append(key)
                 except Exception:
                     stamps[raw.topic].append(-1)
         fault = rec.fault
@@ -94,6 +98,10 @@ def inspect_recording(path: Path | str, gap_factor: float = 3.0) -> RecordingRep
     oddities: list[str] = []
     if fault is not None:
         oddities.append(f"damaged: {fault.message}")
+    for topic, flags in keys.items():
+        words, odd = _keyframe_words(topic, flags)
+        detail[topic] = f"{detail.get(topic, '')}, {words}" if words else detail.get(topic, "")
+        oddities.extend(odd)
     reports = []
     origin = start or 0
     for info in sorted(infos, key=lambda t: t.topic):
@@ -135,6 +143,23 @@ def inspect_recording(path: Path | str, gap_factor: float = 3.0) -> RecordingRep
     duration = (end - start) / 1e9 if start is not None and end is not None else None
     return RecordingReport(path, backend, duration, start, end, reports, choice, choice_error,
                            oddities, None if fault is None else fault.message)
+
+
+def _keyframe_words(topic: str, flags: list[bool | None]) -> tuple[str, list[str]]:
+    """A video topic's keyframe spacing for its detail, and what analyze will skip: the
+    messages before the first keyframe cannot be decoded."""
+    if not flags or any(f is None for f in flags):
+        return "", []
+    at = [i for i, f in enumerate(flags) if f]
+    if not at:
+        return "no keyframe", [f"{topic}: no keyframe in {len(flags)} messages: no picture can "
+                                "be decoded"]
+    spacing = np.diff(at)
+    words = (f"keyframe every {int(np.median(spacing))} msgs" if spacing.size
+             else "one keyframe")
+    odd = [f"{topic}: the first keyframe is message {at[0]}: the {at[0]} before it cannot be "
+           "decoded and are skipped"] if at[0] else []
+    return words, odd
 
 
 def _detail(msg: Any, msgtype: str) -> str:

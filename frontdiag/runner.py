@@ -21,7 +21,7 @@ from typing import Any
 
 from frontdiag.errors import ConfigError, DecodeError, FrontdiagError
 from frontdiag.io.decode import decode_camera, decode_lidar, header_stamp_ns, odometry_pose
-from frontdiag.io.images import GrayConverter, is_video
+from frontdiag.io.images import GrayConverter, is_keyframe, is_video, video_format
 from frontdiag.io.readers import Recording
 from frontdiag.io.topics import TopicChoice
 from frontdiag.records import CameraFrame, Intrinsics, LidarScan
@@ -254,6 +254,29 @@ def feed_video(rec: Recording, raw: Any, conv: GrayConverter) -> None:
         log.debug("video message on %s not decoded: %s", raw.topic, exc)
 
 
+def video_feed_start(rec: Recording, topic: str, first_index: int, start_ns: int | None
+                     ) -> int:
+    """The message of a video topic to start decoding at for a pass whose first analysed
+    message is the first at or after ``first_index`` logged at or after ``start_ns``: the last
+    keyframe before it (:func:`frontdiag.io.images.is_keyframe`), so that a late --start or a
+    later --jobs window does not decode the whole recording before it. 0 where keyframes
+    cannot be told (VP9, AV1) or none comes before it."""
+    last_key = 0
+    for i, raw in enumerate(rec.messages([topic])):
+        if i >= first_index and (start_ns is None or raw.log_ns >= start_ns):
+            return last_key
+        try:
+            msg = rec.deserialize(raw)
+            key = is_keyframe(msg.data, video_format(msg, raw.msgtype))
+        except Exception:  # the pass itself reports undecodable messages
+            continue
+        if key is None:
+            return 0
+        if key:
+            last_key = i
+    return last_key
+
+
 @contextmanager
 def frame_boundary_interrupts() -> Iterator[Callable[[], bool]]:
     """Ctrl-C (or SIGTERM where it is handled like Ctrl-C) during the block is held until the
@@ -331,6 +354,10 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
         if stream is not None:
             stream.window_start = s
             stream.sink = sink
+    feed_from = 0
+    if video and choice.camera and ((frames is not None and frames.warm_from > 0)
+                                    or s is not None):
+        feed_from = video_feed_start(rec, choice.camera, frames.warm_from if frames else 0, s)
     done = 0
     by_frame: dict[int, dict[str, Any]] = {}  # owned camera rows, for completions
 
@@ -380,7 +407,9 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
                     if cam_stream.draining and not cam_front.pending:
                         break
                     if not cam_stream.admit(raw.log_ns):
-                        if video:  # not analysed, but later pictures are decoded from it
+                        # not analysed, but later pictures are decoded from it (from the last
+                        # keyframe before the first message analysed)
+                        if video and cam_stream.index >= feed_from:
                             feed_video(rec, raw, conv)
                         continue
                     frame = decode_camera(rec, raw, cam_stream, conv)

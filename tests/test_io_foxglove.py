@@ -110,12 +110,51 @@ def test_a_video_split_into_windows_gives_the_serial_table(tmp_path: Path) -> No
 
 
 def test_stride_and_start_still_decode_the_pictures_they_skip(tmp_path: Path) -> None:
-    frames = _video_frames(40)
+    """--start 1.3 s (frame 26 at 20 Hz) decodes from the keyframe at frame 20; --stride 3
+    still feeds the frames it skips to the decoder."""
+    from frontdiag.io.readers import open_recording
+    from frontdiag.runner import video_feed_start
+
+    frames = _video_frames(60)
     path = _video_recording(tmp_path / "v.mcap", frames, keyint=20)
     full = analyze(path).set_index("frame")["mean_intensity"]
-    strided = analyze(path, stride=3, start_s=0.6).set_index("frame")["mean_intensity"]
-    assert strided.index.min() >= 12 and len(strided) >= 9
+    strided = analyze(path, stride=3, start_s=1.3).set_index("frame")["mean_intensity"]
+    assert strided.index.min() == 26 and len(strided) == 12
     assert strided.equals(full.loc[strided.index])
+    with open_recording(path) as rec:
+        start = rec.start_ns
+        assert start is not None
+        assert video_feed_start(rec, "/cam/video", 0, start + 1_300_000_000) == 20
+        assert video_feed_start(rec, "/cam/video", 45, None) == 40
+        assert video_feed_start(rec, "/cam/video", 19, None) == 0
+
+
+@pytest.mark.parametrize("codec", ["h264", "h265"])
+def test_keyframes_are_told_from_the_bitstream(codec: str) -> None:
+    from fractions import Fraction
+
+    import av
+
+    from frontdiag.io.images import is_keyframe
+
+    enc = av.CodecContext.create("libx264" if codec == "h264" else "libx265", "w")
+    enc.width, enc.height, enc.pix_fmt = 160, 120, "yuv420p"
+    enc.time_base = Fraction(1, 30)
+    if codec == "h264":
+        enc.options = {"preset": "ultrafast",
+                       "x264-params": "keyint=8:min-keyint=8:bframes=0:repeat-headers=1"}
+    else:
+        enc.options = {"preset": "ultrafast",
+                       "x265-params": "keyint=8:min-keyint=8:bframes=0:repeat-headers=1:"
+                                      "log-level=error"}
+    packets: list[bytes] = []
+    for i, img in enumerate(_video_frames(20)):
+        f = av.VideoFrame.from_ndarray(img, format="gray").reformat(format="yuv420p")
+        f.pts = i
+        packets += [bytes(p) for p in enc.encode(f)]
+    packets += [bytes(p) for p in enc.encode(None)]
+    assert [i for i, p in enumerate(packets) if is_keyframe(p, codec)] == [0, 8, 16]
+    assert is_keyframe(packets[0], "vp9") is None
 
 
 def test_a_damaged_picture_is_skipped_and_the_run_goes_on(tmp_path: Path) -> None:
@@ -337,8 +376,19 @@ def test_ffmpeg_image_transport_packets(tmp_path: Path) -> None:
         w.finish()
     from frontdiag.inspect import inspect_recording
 
-    assert inspect_recording(path).topics[0].detail == "video h264"
+    assert inspect_recording(path).topics[0].detail == "video h264, keyframe every 6 msgs"
     df = analyze(path, intrinsics="120,120,80,60")
     assert len(df) == 12 and (df["t_ns"].diff().dropna() == DT).all()
     assert np.abs(df["mean_intensity"].to_numpy()
                   - np.array([f.mean() for f in frames])).max() < 1.0
+
+
+def test_info_gives_a_videos_keyframe_spacing_and_what_cannot_be_decoded(tmp_path: Path
+                                                                         ) -> None:
+    from frontdiag.inspect import inspect_recording
+
+    path = _video_recording(tmp_path / "v.mcap", _video_frames(40), keyint=10, drop=3)
+    rep = inspect_recording(path)
+    video = next(t for t in rep.topics if t.topic == "/cam/video")
+    assert video.detail == "video h264, keyframe every 10 msgs"
+    assert any("first keyframe is message 7" in o and "7 before it" in o for o in rep.oddities)

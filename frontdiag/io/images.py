@@ -211,6 +211,26 @@ class VideoDecoder:
         return luma(mine[-1])
 
 
+def is_keyframe(data: Any, fmt: str) -> bool | None:
+    """Whether a video message starts a picture that needs no earlier one: an H.264 IDR
+    (NAL type 5) or an H.265 IRAP picture (NAL types 16-21), found by the Annex B start codes
+    (00 00 01) Foxglove's CompressedVideo and ffmpeg_image_transport use. None for other
+    codecs, which are then decoded from their first message."""
+    if fmt not in ("h264", "h265", "hevc"):
+        return None
+    buf = bytes(data)
+    at = buf.find(b"\x00\x00\x01")
+    while 0 <= at < len(buf) - 3:
+        head = buf[at + 3]
+        if fmt == "h264":
+            if head & 0x1F == 5:
+                return True
+        elif 16 <= (head >> 1) & 0x3F <= 21:
+            return True
+        at = buf.find(b"\x00\x00\x01", at + 3)
+    return False
+
+
 # 8-bit pixel formats whose first plane is the luma Y, in limited (video) range unless the
 # frame says full; the "j" formats are full range (JPEG's)
 _Y_FIRST = frozenset({"yuv420p", "yuv422p", "yuv444p", "yuv440p", "yuv411p", "yuv410p", "nv12",
