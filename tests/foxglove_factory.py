@@ -109,20 +109,33 @@ def camera_items(frames: list[np.ndarray], K: np.ndarray, t0: int, dt: int, *,
 def h264_packets(frames: list[np.ndarray], keyint: int) -> list[bytes]:
     """Grey frames encoded as H.264 (x264, no B-frames, a keyframe every ``keyint`` frames with
     its SPS and PPS, Annex B): one access unit per frame, as Foxglove's CompressedVideo holds."""
+    out = encode_video(frames, keyint)
+    assert len(out) == len(frames)
+    return out
+
+
+def encode_video(frames: list[np.ndarray], keyint: int, *, encoder: str = "libx264",
+                 bframes: int = 0) -> list[bytes]:
+    """Grey frames as H.264 (``libx264``) or H.265 (``libx265``) access units in decode order,
+    a keyframe every ``keyint`` frames with its parameter sets, ``bframes`` B-frames at most
+    between references."""
     import av
 
     h, w = frames[0].shape
-    enc = av.CodecContext.create("libx264", "w")
+    enc = av.CodecContext.create(encoder, "w")
     enc.width, enc.height, enc.pix_fmt = w, h, "yuv420p"
     enc.time_base = Fraction(1, 30)
-    enc.options = {"preset": "ultrafast", "tune": "zerolatency", "crf": "12",
-                   "x264-params": f"keyint={keyint}:min-keyint={keyint}:bframes=0:"
-                                  "repeat-headers=1:threads=1"}
+    params = f"keyint={keyint}:min-keyint={keyint}:bframes={bframes}:repeat-headers=1"
+    if encoder == "libx264":
+        enc.options = {"preset": "ultrafast", "crf": "12", "x264-params": params + ":threads=1"}
+        if not bframes:
+            enc.options = {**enc.options, "tune": "zerolatency"}  # which turns B-frames off
+    else:
+        enc.options = {"preset": "ultrafast", "x265-params": params + ":log-level=error"}
     out: list[bytes] = []
     for i, img in enumerate(frames):
         frame = av.VideoFrame.from_ndarray(img, format="gray").reformat(format="yuv420p")
         frame.pts = i
         out += [bytes(p) for p in enc.encode(frame)]
     out += [bytes(p) for p in enc.encode(None)]
-    assert len(out) == len(frames)
     return out

@@ -9,7 +9,13 @@ from typing import Any
 import numpy as np
 import pandas as pd
 import pytest
-from foxglove_factory import camera_items, h264_packets, write_json, write_protobuf
+from foxglove_factory import (
+    camera_items,
+    encode_video,
+    h264_packets,
+    write_json,
+    write_protobuf,
+)
 from recording_factory import DT, T0, K, frame, write_recording
 
 from frontdiag.api import AnalysisOptions, analyze, run_analysis
@@ -131,28 +137,12 @@ def test_stride_and_start_still_decode_the_pictures_they_skip(tmp_path: Path) ->
 
 @pytest.mark.parametrize("codec", ["h264", "h265"])
 def test_keyframes_are_told_from_the_bitstream(codec: str) -> None:
-    from fractions import Fraction
 
-    import av
 
     from frontdiag.io.images import is_keyframe
 
-    enc = av.CodecContext.create("libx264" if codec == "h264" else "libx265", "w")
-    enc.width, enc.height, enc.pix_fmt = 160, 120, "yuv420p"
-    enc.time_base = Fraction(1, 30)
-    if codec == "h264":
-        enc.options = {"preset": "ultrafast",
-                       "x264-params": "keyint=8:min-keyint=8:bframes=0:repeat-headers=1"}
-    else:
-        enc.options = {"preset": "ultrafast",
-                       "x265-params": "keyint=8:min-keyint=8:bframes=0:repeat-headers=1:"
-                                      "log-level=error"}
-    packets: list[bytes] = []
-    for i, img in enumerate(_video_frames(20)):
-        f = av.VideoFrame.from_ndarray(img, format="gray").reformat(format="yuv420p")
-        f.pts = i
-        packets += [bytes(p) for p in enc.encode(f)]
-    packets += [bytes(p) for p in enc.encode(None)]
+    packets = encode_video(_video_frames(20), 8,
+                           encoder="libx264" if codec == "h264" else "libx265")
     assert [i for i, p in enumerate(packets) if is_keyframe(p, codec)] == [0, 8, 16]
     assert is_keyframe(packets[0], "vp9") is None
 
@@ -324,21 +314,9 @@ def test_luma_is_ffmpegs_grey_conversion(pix_fmt: str) -> None:
 def test_a_video_with_b_frames_is_refused_not_misread(tmp_path: Path) -> None:
     """B-frames make pictures come out after later messages, each message's stamp then not its
     picture's: refused with the reason."""
-    from fractions import Fraction
 
-    import av
 
-    enc = av.CodecContext.create("libx264", "w")
-    enc.width, enc.height, enc.pix_fmt = 160, 120, "yuv420p"
-    enc.time_base = Fraction(1, 30)
-    enc.options = {"preset": "ultrafast",
-                   "x264-params": "keyint=10:bframes=2:repeat-headers=1:threads=1"}
-    packets: list[bytes] = []
-    for i, img in enumerate(_video_frames(20)):
-        f = av.VideoFrame.from_ndarray(img, format="gray").reformat(format="yuv420p")
-        f.pts = i
-        packets += [bytes(p) for p in enc.encode(f)]
-    packets += [bytes(p) for p in enc.encode(None)]
+    packets = encode_video(_video_frames(20), 10, bframes=2)
     path = write_protobuf(tmp_path / "b.mcap", iter(
         ("/cam/video", "CompressedVideo", T0 + i * DT,
          {"frame_id": "cam", "data": p, "format": "h264"}) for i, p in enumerate(packets)))
