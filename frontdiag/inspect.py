@@ -81,6 +81,8 @@ def inspect_recording(path: Path | str, gap_factor: float = 3.0) -> RecordingRep
                             detail[raw.topic] = f"Livox, {livox_point_count(raw.data, enc)} pts"
                     elif raw.msgtype in VELODYNE_TYPES:  # 1206-byte packets, not objects
                         msg = read_scan(raw.data, encodings.get(raw.topic) or "cdr", raw.topic)
+                        if raw.topic not in detail:
+                            detail[raw.topic] = _velodyne_detail(raw.topic, msg)
                     else:
                         msg = rec.deserialize(raw)
                     st = msg.header.stamp
@@ -145,6 +147,19 @@ def inspect_recording(path: Path | str, gap_factor: float = 3.0) -> RecordingRep
                            oddities, None if fault is None else fault.message)
 
 
+def _velodyne_detail(topic: str, msg: Any) -> str:
+    """The sensor model the packets name (their factory bytes), the return mode and the
+    packet count of one scan."""
+    from frontdiag.lidar.velodyne import VelodyneDecoder
+
+    dec = VelodyneDecoder(topic)
+    try:
+        dec(msg, index=0, log_ns=0, t_ns=0)
+    except Exception:  # the run reports what the decoder refuses
+        return f"Velodyne, {len(msg.packets)} packets (not decodable)"
+    return f"Velodyne {dec.model}, {dec.return_mode}, {len(msg.packets)} packets"
+
+
 def _keyframe_words(topic: str, flags: list[bool | None]) -> tuple[str, list[str]]:
     """A video topic's keyframe spacing for its detail, and what analyze will skip: the
     messages before the first keyframe cannot be decoded."""
@@ -175,8 +190,6 @@ def _detail(msg: Any, msgtype: str) -> str:
         return f"{msg.width * msg.height} pts ({names})"
     if msgtype.endswith("LaserScan"):
         return f"{len(msg.ranges)} ranges"
-    if msgtype.endswith("VelodyneScan"):
-        return f"Velodyne, {len(msg.packets)} packets"
     return ""
 
 

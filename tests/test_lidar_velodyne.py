@@ -106,7 +106,7 @@ def test_info_names_the_sensor(tmp_path: Path) -> None:
             w.write("/velodyne_packets", TYPE, scan_msg(packets), int(packets[-1][0] * 1e9))
     rep = inspect_recording(path)
     (top,) = rep.topics
-    assert top.msgtype == TYPE and top.detail == "Velodyne, 76 packets"
+    assert top.msgtype == TYPE and top.detail == "Velodyne VLP16, strongest, 76 packets"
     assert rep.choice is not None and rep.choice.lidar == "/velodyne_packets"
 
 

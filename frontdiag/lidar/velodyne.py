@@ -115,8 +115,15 @@ class VelodyneDecoder:
 
     @property
     def model(self) -> str:
+        """The model the packets named (``VLP16``, ``HDL32E`` ...; empty before any)."""
         m = self._dec.model_id
         return "" if m is None else str(getattr(m, "name", m))
+
+    @property
+    def return_mode(self) -> str:
+        """``strongest``, ``last`` or ``dual`` (empty before any packet)."""
+        m = self._dec.return_mode
+        return "" if m is None else str(getattr(m, "name", m)).lower()
 
     def __call__(self, msg: Any, *, index: int, log_ns: int, t_ns: int) -> LidarScan:
         start = time.perf_counter()
