@@ -33,7 +33,7 @@ from frontdiag.io.camera_info import (
     scaled_K,
 )
 from frontdiag.io.decode import header_stamp_ns, odometry_pose
-from frontdiag.io.images import is_video
+from frontdiag.io.images import is_video_message
 from frontdiag.io.readers import Recording, open_recording, recording_size
 from frontdiag.io.topics import TopicChoice, choose_topics
 from frontdiag.metrics import CAMERA_COLUMNS, LIDAR_COLUMNS
@@ -147,15 +147,17 @@ def first_image_size(rec: Recording, choice: TopicChoice) -> tuple[int, int] | N
 
     assert choice.camera is not None
     conv = GrayConverter(choice.camera)
+    video = False
     for i, raw in enumerate(rec.messages([choice.camera])):
         try:
             msg = rec.deserialize(raw)
-            if not is_video(raw.msgtype) and hasattr(msg, "width") and hasattr(msg, "height"):
+            video = is_video_message(msg, raw.msgtype)
+            if not video and hasattr(msg, "width") and hasattr(msg, "height"):
                 return int(msg.width), int(msg.height)
             gray, _ = conv(msg, raw.msgtype)
             return int(gray.shape[1]), int(gray.shape[0])
         except Exception:
-            if not is_video(raw.msgtype) or i + 1 >= VIDEO_KEYFRAME_SEARCH:
+            if not video or i + 1 >= VIDEO_KEYFRAME_SEARCH:
                 return None
     return None
 

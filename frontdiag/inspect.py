@@ -10,7 +10,7 @@ import numpy as np
 
 from frontdiag.errors import TopicError
 from frontdiag.io import foxglove
-from frontdiag.io.images import IMAGE_TYPES, is_keyframe, is_video, video_format
+from frontdiag.io.images import IMAGE_TYPES, is_keyframe, is_video_message, video_format
 from frontdiag.io.readers import open_recording
 from frontdiag.io.topics import LIDAR_TYPES, TopicChoice, choose_topics
 from frontdiag.lidar.livox import LIVOX_TYPES, header_stamp, livox_point_count
@@ -89,7 +89,7 @@ def inspect_recording(path: Path | str, gap_factor: float = 3.0) -> RecordingRep
                     stamps[raw.topic].append(int(st.sec) * 1_000_000_000 + int(st.nanosec))
                     if raw.topic not in detail:
                         detail[raw.topic] = _detail(msg, raw.msgtype)
-                    if is_video(raw.msgtype):
+                    if is_video_message(msg, raw.msgtype):
                         key = is_keyframe(msg.data, video_format(msg, raw.msgtype))
                         keys.setdefault(raw.topic, []).append(key)
                 except Exception:
@@ -179,7 +179,7 @@ def _keyframe_words(topic: str, flags: list[bool | None]) -> tuple[str, list[str
 
 def _detail(msg: Any, msgtype: str) -> str:
     msgtype = foxglove.ros_type(msgtype)
-    if is_video(msgtype):
+    if is_video_message(msg, msgtype):
         return f"video {video_format(msg, msgtype)}"
     if msgtype.endswith("/Image"):
         return f"{msg.width}x{msg.height} {msg.encoding}"

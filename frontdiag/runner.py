@@ -21,7 +21,7 @@ from typing import Any
 
 from frontdiag.errors import ConfigError, DecodeError, FrontdiagError
 from frontdiag.io.decode import decode_camera, decode_lidar, header_stamp_ns, odometry_pose
-from frontdiag.io.images import GrayConverter, is_keyframe, is_video, video_format
+from frontdiag.io.images import GrayConverter, is_keyframe, is_video_topic, video_format
 from frontdiag.io.readers import Recording
 from frontdiag.io.topics import TopicChoice
 from frontdiag.records import CameraFrame, Intrinsics, LidarScan
@@ -334,7 +334,7 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
         cam_front = CameraFrontend(opts.camera_params or CameraParams(), intr)
         cam_stream = SensorStream(choice.camera, opts, frames)
         conv = GrayConverter(choice.camera)
-        video = bool(choice.camera_type) and is_video(choice.camera_type or "")
+        video = is_video_topic(rec, choice.camera, choice.camera_type or "")
         # a window that starts later scales mono16 as a run from the start does; a video's
         # decoder instead sees every message from the start (feed_video)
         if frames is not None and frames.warm_from > 0 and not video:

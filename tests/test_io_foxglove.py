@@ -370,3 +370,31 @@ def test_info_gives_a_videos_keyframe_spacing_and_what_cannot_be_decoded(tmp_pat
     video = next(t for t in rep.topics if t.topic == "/cam/video")
     assert video.detail == "video h264, keyframe every 10 msgs"
     assert any("first keyframe is message 7" in o and "7 before it" in o for o in rep.oddities)
+
+
+@pytest.mark.parametrize("fmt", ["mcap", "bag"])
+def test_h264_in_a_compressed_image_topic(tmp_path: Path, fmt: str) -> None:
+    """sensor_msgs/CompressedImage whose format is a video codec (FFmpeg-based image_transport
+    plugins publish H.264 that way): decoded as video, --start included."""
+    from frontdiag.inspect import inspect_recording
+    from frontdiag.io.writer import RecordingWriter, camera_info_msg, compressed_image_msg
+
+    frames = _video_frames(40)
+    packets = h264_packets(frames, keyint=10)
+    path = tmp_path / f"ci.{fmt}"
+    with RecordingWriter(path, fmt) as w:
+        for i, pkt in enumerate(packets):
+            t = T0 + i * DT
+            w.write("/cam/image/ffmpeg", "sensor_msgs/msg/CompressedImage",
+                    compressed_image_msg(pkt, "h264", t), t)
+            w.write("/cam/camera_info", "sensor_msgs/msg/CameraInfo",
+                    camera_info_msg(K, 160, 120, t), t)
+    df = analyze(path)
+    assert len(df) == 40
+    assert np.abs(df["mean_intensity"].to_numpy()
+                  - np.array([f.mean() for f in frames])).max() < 1.0
+    late = analyze(path, start_s=1.3).set_index("frame")["mean_intensity"]
+    assert late.index.min() == 26
+    assert late.equals(df.set_index("frame")["mean_intensity"].loc[late.index])
+    video = next(t for t in inspect_recording(path).topics if t.topic == "/cam/image/ffmpeg")
+    assert video.detail == "video h264, keyframe every 10 msgs"

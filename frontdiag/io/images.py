@@ -25,8 +25,33 @@ IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage",
 
 
 def is_video(msgtype: str) -> bool:
-    """Whether a message type carries video, whose pictures depend on earlier messages."""
+    """Whether a message type carries video, whose pictures depend on earlier messages (see
+    also :func:`is_video_topic`: a CompressedImage topic can carry video too)."""
     return msgtype in VIDEO_TYPES
+
+
+def is_video_message(msg: Any, msgtype: str) -> bool:
+    """A video message type, or a CompressedImage whose ``format`` names a video codec (FFmpeg
+    based image_transport plugins publish H.264 that way)."""
+    if is_video(msgtype):
+        return True
+    return (foxglove.ros_type(msgtype).endswith("CompressedImage")
+            and str(getattr(msg, "format", "")).strip().lower() in VIDEO_CODECS)
+
+
+def is_video_topic(rec: Any, topic: str, msgtype: str) -> bool:
+    """Whether a camera topic carries video: by its type, or for a CompressedImage topic by
+    its first message's format."""
+    if is_video(msgtype):
+        return True
+    if not msgtype.endswith("CompressedImage"):
+        return False
+    for raw in rec.messages([topic]):
+        try:
+            return is_video_message(rec.deserialize(raw), raw.msgtype)
+        except Exception:  # the pass reports undecodable messages
+            return False
+    return False
 
 
 def video_format(msg: Any, msgtype: str) -> str:
@@ -82,7 +107,7 @@ class GrayConverter:
 
     def __call__(self, msg: Any, msgtype: str) -> tuple[np.ndarray, str]:
         msgtype = foxglove.ros_type(msgtype)
-        if msgtype in VIDEO_TYPES:
+        if is_video_message(msg, msgtype):
             fmt = video_format(msg, msgtype)
             if self.video is None:
                 self.video = VideoDecoder(self.topic, fmt)

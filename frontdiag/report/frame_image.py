@@ -18,7 +18,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from frontdiag.io.images import is_video
+from frontdiag.io.images import is_video_message
 from frontdiag.records import (
     KP_INLIER,
     KP_OUTLIER,
@@ -118,7 +118,7 @@ def read_pixels(manifest: Mapping[str, Any], topic: str, log_ns: int) -> np.ndar
     try:
         with open_recording(Path(path)) as rec:
             for raw in rec.messages([topic], log_ns, log_ns):
-                if is_video(raw.msgtype):
+                if is_video_message(rec.deserialize(raw), raw.msgtype):
                     return _video_picture(rec, topic, log_ns)
                 gray, _ = GrayConverter(topic)(rec.deserialize(raw), raw.msgtype)
                 return gray
