@@ -4,6 +4,8 @@
     python sample_logs/score.py run1.mcap run2.bag    # any recordings with .labels.csv beside
     python sample_logs/score.py --simulate 13 320x240 [--seconds 6] [--rate 30] [--keep DIR]
                                                       # every scenario freshly simulated
+    python sample_logs/score.py --video 23 [...]      # each camera re-encoded as H.264 first
+                                                      # (validation/video.py; camera only)
 
 Prints, per condition over all recordings: episodes found, frame precision/recall/F1 and false
 alarms on healthy frames (the `frontdiag eval` numbers, summed); then the median [p10, p90] of
@@ -73,10 +75,32 @@ def simulate_all(seed: int, size: str, seconds: float | None, out: Path,
     return recs
 
 
-def main(argv: list[str]) -> int:
+CAMERA_CONDITIONS = tuple(c for c, s in CONDITION_SENSORS.items()
+                          if s == ("camera",))
+
+
+def _as_video(rec: Path, crf: int) -> pd.DataFrame:
+    """The table of ``rec``'s camera re-encoded as H.264 (validation/video.py): the video
+    recording holds the camera and its calibration only, so only camera conditions are
+    scored."""
+    import tempfile
+
+    from validation.video import to_h264
+
+    with tempfile.TemporaryDirectory() as tmp:
+        video = to_h264(rec, Path(tmp) / f"{rec.name}.h264.mcap", crf=crf)
+        return normalise_frames(analyze(video), source=str(rec))
+
+
+def main(argv: list[str], video_crf: int | None = None) -> int:
     if argv[:1] in (["-h"], ["--help"]):
         print(__doc__)
         return 0
+    if "--video" in argv:  # anywhere on the line: the camera re-encoded as H.264 at this CRF
+        at = argv.index("--video")
+        if at + 1 >= len(argv) or not argv[at + 1].isdigit():
+            raise ConfigError("--video takes a CRF (an integer, e.g. 23)")
+        return main(argv[:at] + argv[at + 2:], video_crf=int(argv[at + 1]))
     if argv[:1] == ["--simulate"]:
         import argparse
         import tempfile
@@ -91,9 +115,11 @@ def main(argv: list[str]) -> int:
         a = ap.parse_args(argv[1:])
         if a.keep is not None:
             a.keep.mkdir(parents=True, exist_ok=True)
-            return main([str(p) for p in simulate_all(a.seed, a.size, a.seconds, a.keep, a.rate)])
+            return main([str(p) for p in simulate_all(a.seed, a.size, a.seconds, a.keep, a.rate)],
+                        video_crf)
         with tempfile.TemporaryDirectory() as tmp:
-            return main([str(p) for p in simulate_all(a.seed, a.size, a.seconds, Path(tmp), a.rate)])
+            return main([str(p) for p in simulate_all(a.seed, a.size, a.seconds, Path(tmp), a.rate)],
+                        video_crf)
     recs = [Path(a) for a in argv] or sorted(
         p for p in HERE.iterdir()
         if p.suffix in (".mcap", ".bag") or (p.is_dir() and (p / "metadata.yaml").exists()))
@@ -103,14 +129,20 @@ def main(argv: list[str]) -> int:
         if not rec.exists():
             raise ConfigError(f"recording not found: {rec}")
         labels = read_labels(labels_path_for(rec))
-        frames = normalise_frames(analyze(rec), source=str(rec))
-        rep = score(frames, labels)
+        if video_crf is None:
+            frames = normalise_frames(analyze(rec), source=str(rec))
+            rep = score(frames, labels)
+        else:
+            frames = _as_video(rec, video_crf)
+            rep = score(frames, labels, conditions=CAMERA_CONDITIONS)
         reports.append(rep)
         frames["label"] = [_truth(t, s, labels) for t, s in zip(frames["t_ns"], frames["sensor"],
                                                                 strict=True)]
         rows.append(frames)
         print(f"{rec.name}: {len(frames)} rows, {rep.false_alarms}/{rep.healthy_frames} "
               "false alarms", file=sys.stderr)
+    if video_crf is not None:
+        print(f"camera re-encoded as H.264 at CRF {video_crf}; camera conditions only")
     print(format_pooled(pool(reports)) + "\n")
     table = pd.concat(rows, ignore_index=True)
     for sensor, metrics in (("camera", CAMERA_METRICS), ("lidar", LIDAR_METRICS)):
