@@ -39,7 +39,13 @@ def odometry_pose(msg: Any) -> np.ndarray:
     """4x4 pose from nav_msgs/Odometry."""
     p = msg.pose.pose.position
     q = msg.pose.pose.orientation
-    x, y, z, w = float(q.x), float(q.y), float(q.z), float(q.w)
+    return pose_matrix((p.x, p.y, p.z), (q.x, q.y, q.z, q.w))
+
+
+def pose_matrix(position: Any, quat_xyzw: Any) -> np.ndarray:
+    """4x4 of a position and a quaternion (x, y, z, w), normalised here; an all-zero
+    quaternion (an unset orientation) is the identity."""
+    x, y, z, w = (float(v) for v in quat_xyzw)
     n = x * x + y * y + z * z + w * w
     s = 2.0 / n if n > 0 else 0.0
     R = np.array([
@@ -49,7 +55,7 @@ def odometry_pose(msg: Any) -> np.ndarray:
     ])
     T = np.eye(4)
     T[:3, :3] = R
-    T[:3, 3] = [float(p.x), float(p.y), float(p.z)]
+    T[:3, 3] = [float(v) for v in position]
     return T
 
 

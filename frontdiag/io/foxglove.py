@@ -160,25 +160,18 @@ _POINT_TYPES = {1: 2, 2: 1, 3: 4, 4: 3, 5: 6, 6: 5, 7: 7, 8: 8}  # UINT8 -> Poin
 
 
 def _pose_matrix(pose: Any) -> np.ndarray | None:
-    """4x4 of a Foxglove ``Pose`` (the points' origin in ``frame_id``); None for identity."""
+    """4x4 of a Foxglove ``Pose`` (the points' origin in ``frame_id``); None for identity
+    (also an unset pose, whose orientation is all zero)."""
+    from frontdiag.io.decode import pose_matrix
+
     if pose is None:
         return None
     p, q = getattr(pose, "position", None), getattr(pose, "orientation", None)
     t = [float(getattr(p, a, 0.0) or 0.0) for a in "xyz"] if p is not None else [0.0] * 3
-    x, y, z, w = ([float(getattr(q, a, 0.0) or 0.0) for a in "xyzw"] if q is not None
-                  else [0.0, 0.0, 0.0, 1.0])
-    n = x * x + y * y + z * z + w * w
-    if n == 0.0:  # an unset orientation (all zero) is the identity
-        x, y, z, w, n = 0.0, 0.0, 0.0, 1.0, 1.0
-    if (x, y, z) == (0.0, 0.0, 0.0) and t == [0.0, 0.0, 0.0]:
-        return None
-    s = 2.0 / n
-    T = np.eye(4)
-    T[:3, :3] = [[1 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w)],
-                 [s * (x * y + z * w), 1 - s * (x * x + z * z), s * (y * z - x * w)],
-                 [s * (x * z - y * w), s * (y * z + x * w), 1 - s * (x * x + y * y)]]
-    T[:3, 3] = t
-    return T
+    quat = ([float(getattr(q, a, 0.0) or 0.0) for a in "xyzw"] if q is not None
+            else [0.0, 0.0, 0.0, 1.0])
+    T = pose_matrix(t, quat)
+    return None if np.array_equal(T, np.eye(4)) else T
 
 
 def _point_cloud(msg: Any, header: SimpleNamespace) -> SimpleNamespace:
