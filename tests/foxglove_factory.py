@@ -4,12 +4,16 @@ from __future__ import annotations
 
 import base64
 import json
+import sys
 from collections.abc import Iterator
-from fractions import Fraction
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:  # validation/ (the encoder) is not part of the package
+    sys.path.insert(0, str(ROOT))
 
 # Foxglove's JSON Schemas, reduced to what a reader needs to know (their published versions
 # add descriptions); bytes fields are base64 strings ("contentEncoding": "base64")
@@ -116,26 +120,11 @@ def h264_packets(frames: list[np.ndarray], keyint: int) -> list[bytes]:
 
 def encode_video(frames: list[np.ndarray], keyint: int, *, encoder: str = "libx264",
                  bframes: int = 0) -> list[bytes]:
-    """Grey frames as H.264 (``libx264``) or H.265 (``libx265``) access units in decode order,
-    a keyframe every ``keyint`` frames with its parameter sets, ``bframes`` B-frames at most
-    between references."""
-    import av
+    """Grey frames as H.264 (``libx264``) or H.265 (``libx265``) access units in decode order
+    (validation/video.py's encoder, fast and nearly lossless: ultrafast, CRF 12)."""
+    from validation.video import Encoder
 
     h, w = frames[0].shape
-    enc = av.CodecContext.create(encoder, "w")
-    enc.width, enc.height, enc.pix_fmt = w, h, "yuv420p"
-    enc.time_base = Fraction(1, 30)
-    params = f"keyint={keyint}:min-keyint={keyint}:bframes={bframes}:repeat-headers=1"
-    if encoder == "libx264":
-        enc.options = {"preset": "ultrafast", "crf": "12", "x264-params": params + ":threads=1"}
-        if not bframes:
-            enc.options = {**enc.options, "tune": "zerolatency"}  # which turns B-frames off
-    else:
-        enc.options = {"preset": "ultrafast", "x265-params": params + ":log-level=error"}
-    out: list[bytes] = []
-    for i, img in enumerate(frames):
-        frame = av.VideoFrame.from_ndarray(img, format="gray").reformat(format="yuv420p")
-        frame.pts = i
-        out += [bytes(p) for p in enc.encode(frame)]
-    out += [bytes(p) for p in enc.encode(None)]
-    return out
+    enc = Encoder(w, h, crf=12, keyint=keyint, codec=encoder, bframes=bframes,
+                  preset="ultrafast")
+    return [p for img in frames for p in enc(img)] + enc.flush()

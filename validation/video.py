@@ -19,18 +19,26 @@ import numpy as np
 
 
 class Encoder:
-    """Grey frames to H.264 access units, one per frame."""
+    """Grey frames to H.264 (``libx264``) or H.265 (``libx265``) access units in decode
+    order, a keyframe every ``keyint`` frames carrying its parameter sets; one per frame
+    without B-frames (``bframes=0``, the default)."""
 
-    def __init__(self, width: int, height: int, crf: int, keyint: int) -> None:
+    def __init__(self, width: int, height: int, crf: int, keyint: int, *,
+                 codec: str = "libx264", bframes: int = 0, preset: str = "medium") -> None:
         import av
 
         self._av = av
-        self.ctx = av.CodecContext.create("libx264", "w")
+        self.ctx = av.CodecContext.create(codec, "w")
         self.ctx.width, self.ctx.height, self.ctx.pix_fmt = width, height, "yuv420p"
         self.ctx.time_base = Fraction(1, 30)
-        self.ctx.options = {"preset": "medium", "tune": "zerolatency", "crf": str(crf),
-                            "x264-params": f"keyint={keyint}:min-keyint={keyint}:bframes=0:"
-                                          "repeat-headers=1:threads=1"}
+        params = f"keyint={keyint}:min-keyint={keyint}:bframes={bframes}:repeat-headers=1"
+        if codec == "libx265":
+            opts = {"x265-params": params + ":log-level=error"}
+        else:
+            opts = {"x264-params": params + ":threads=1"}
+            if not bframes:
+                opts["tune"] = "zerolatency"  # which also turns B-frames off
+        self.ctx.options = {"preset": preset, "crf": str(crf), **opts}
         self.n = 0
 
     def __call__(self, gray: np.ndarray) -> list[bytes]:
