@@ -26,11 +26,11 @@ from frontdiag.errors import (
 )
 from frontdiag.io.camera_info import (
     HOW_TO_PASS_K,
+    fit_to_images,
     from_camera_info,
     is_rectified_topic,
     load_camera_info_yaml,
     parse_intrinsics,
-    scaled_K,
 )
 from frontdiag.io.decode import header_stamp_ns, odometry_pose
 from frontdiag.io.images import is_video_message
@@ -162,34 +162,6 @@ def first_image_size(rec: Recording, choice: TopicChoice) -> tuple[int, int] | N
     return None
 
 
-def fit_to_images(intr: Intrinsics, size: tuple[int, int] | None,
-                  notes: list[str]) -> Intrinsics:
-    """The calibration for images of ``size``: K scaled where the images are the calibrated
-    view resized (or binned), the same aspect ratio within 1 %; as it is, with a note, where
-    they are another view (a crop or region of interest), which K does not describe.
-
-    A calibration describes the image size it was made at; a resize node or binning that
-    passes the CameraInfo on unchanged leaves K for the full view, and the principal point then
-    lies far from the images' centre, which biases every E, parallax and rotation reading.
-    The scaling is :func:`frontdiag.io.camera_info.scaled_K`, the one binning uses.
-    """
-    if size is None or (size[0], size[1]) == (intr.width, intr.height):
-        return intr
-    w, h = size
-    sx, sy = w / intr.width, h / intr.height
-    if abs(sx - sy) > 0.01 * max(sx, sy):
-        notes.append(f"{intr.source} is for {intr.width}x{intr.height} images but the camera's "
-                     f"are {w}x{h}, another aspect ratio (a crop or region of interest): K is "
-                     f"used as it is and the geometry readings are suspect; {HOW_TO_PASS_K} "
-                     "for these images")
-        return intr
-    K = scaled_K(intr.K, sx, sy)
-    notes.append(f"{intr.source} is for {intr.width}x{intr.height} images, the camera's are "
-                 f"{w}x{h}: K scaled by {sx:.4g} (the same view resized)")
-    return replace(intr, K=K, width=w, height=h,
-                   source=f"{intr.source}, scaled to {w}x{h}")
-
-
 def _expected(count: int | None, opts: AnalysisOptions, rec: Recording) -> int | None:
     if count is None:
         return opts.max_frames
@@ -318,7 +290,6 @@ def _read_intervals_for(ruleset: Any, opts: AnalysisOptions) -> AnalysisOptions:
     with a ``rot_fit_px`` and a lower ``he_degenerate`` or ``parallax_split_deg`` lower them; it
     also takes it on intervals that turned ``rot_fit_turn_px``, lowered to the rules' own.
     """
-    from dataclasses import replace
 
     from frontdiag.camera.frontend import CameraParams
 

@@ -238,3 +238,31 @@ def camera_info_topic_for(image_topic: str, info_topics: list[str]) -> str | Non
             if cand in info_topics:
                 return cand
     return info_topics[0] if len(info_topics) == 1 else None
+
+
+def fit_to_images(intr: Intrinsics, size: tuple[int, int] | None,
+                  notes: list[str]) -> Intrinsics:
+    """The calibration for images of ``size``: K scaled where the images are the calibrated
+    view resized (or binned), the same aspect ratio within 1 %; as it is, with a note, where
+    they are another view (a crop or region of interest), which K does not describe.
+
+    A calibration describes the image size it was made at; a resize node or binning that
+    passes the CameraInfo on unchanged leaves K for the full view, and the principal point then
+    lies far from the images' centre, which biases every E, parallax and rotation reading.
+    The scaling is :func:`scaled_K`, the one binning uses.
+    """
+    if size is None or (size[0], size[1]) == (intr.width, intr.height):
+        return intr
+    w, h = size
+    sx, sy = w / intr.width, h / intr.height
+    if abs(sx - sy) > 0.01 * max(sx, sy):
+        notes.append(f"{intr.source} is for {intr.width}x{intr.height} images but the camera's "
+                     f"are {w}x{h}, another aspect ratio (a crop or region of interest): K is "
+                     f"used as it is and the geometry readings are suspect; {HOW_TO_PASS_K} "
+                     "for these images")
+        return intr
+    K = scaled_K(intr.K, sx, sy)
+    notes.append(f"{intr.source} is for {intr.width}x{intr.height} images, the camera's are "
+                 f"{w}x{h}: K scaled by {sx:.4g} (the same view resized)")
+    return replace(intr, K=K, width=w, height=h,
+                   source=f"{intr.source}, scaled to {w}x{h}")
