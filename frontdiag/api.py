@@ -17,6 +17,7 @@ import numpy as np
 import pandas as pd
 
 from frontdiag import __version__
+from frontdiag.camera.frontend import SIZE_STATUS
 from frontdiag.errors import (
     ConfigError,
     DecodeError,
@@ -338,6 +339,12 @@ def _stream_notes(path: Path, rec: Recording, run: StreamRun,
         if st.gaps:
             notes.append(f"{stream.topic}: {st.gaps} gap(s) in the recording; the frontend "
                          f"started afresh after each (rows with status {GAP_STATUS})")
+        if st.size_changes:
+            shown = "; ".join(st.size_changes[:3])
+            more = f"; and {len(st.size_changes) - 3} more" if len(st.size_changes) > 3 else ""
+            notes.append(f"{stream.topic}: the image size changed {len(st.size_changes)} "
+                         f"time(s), and the frontend started afresh at each (rows with status "
+                         f"{SIZE_STATUS}): {shown}{more}")
     return fault
 
 

@@ -333,6 +333,6 @@ def _merge_counts(acc: SensorStream | None, cur: SensorStream | None) -> SensorS
         non_monotonic_stamps=a.non_monotonic_stamps + b.non_monotonic_stamps,
         zero_stamps=a.zero_stamps + b.zero_stamps,
         last_t_ns=b.last_t_ns if b.last_t_ns is not None else a.last_t_ns,
-        gaps=a.gaps + b.gaps)
+        gaps=a.gaps + b.gaps, size_changes=a.size_changes + b.size_changes)
     acc.index = cur.index
     return acc

@@ -50,6 +50,8 @@ class TopicStats:
     zero_stamps: int = 0
     last_t_ns: int | None = None
     gaps: int = 0  # gaps in the recording after which the frontend started afresh
+    # where the image size changed (the frontend started afresh): "frame N: WxH -> W'xH': K ..."
+    size_changes: list[str] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -95,6 +97,9 @@ class SensorStream:
             row["status"] = GAP_STATUS
         if self.owned:
             self.stats.analysed += 1
+            resized = getattr(frontend, "resized", None)
+            if resized is not None:
+                self.stats.size_changes.append(f"frame {record.index}: {resized}")
             if self.sink is not None:
                 self.sink(row, getattr(frontend, "last_annotation", None), record)
         return row

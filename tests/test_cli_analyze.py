@@ -431,6 +431,49 @@ def test_a_camera_info_for_another_image_size_is_scaled_or_flagged(tmp_path: Pat
     assert not inspect_recording(tmp_path / "own.mcap").oddities
 
 
+def test_a_change_of_image_size_restarts_the_frontend_with_k_fitted(tmp_path: Path) -> None:
+    """A camera reconfigured mid-recording (binning off, another resolution): from frame 8 the
+    images are 320x240, the CameraInfo still says 160x120. Nothing is matched across the
+    change; the frontend starts afresh there with K scaled to the new size, so the rows from
+    frame 8 on are those of a recording that starts at frame 8 (whose K is scaled the same way
+    before the run), and the rows before it those of a recording that ends at frame 7."""
+    import cv2
+    from recording_factory import DT, K
+
+    from frontdiag.api import analyze
+    from frontdiag.io.writer import RecordingWriter, camera_info_msg
+
+    def write(path: Path, frames: range) -> Path:
+        with RecordingWriter(path, "mcap") as w:
+            for i in frames:
+                t = T0 + i * DT
+                img = frame(i, 0, shift=2)
+                if i >= 8:
+                    img = cv2.resize(img, (320, 240), interpolation=cv2.INTER_LINEAR)
+                w.write("/cam/image_raw", "sensor_msgs/msg/Image", image_msg(img, "mono8", t), t)
+                w.write("/cam/camera_info", "sensor_msgs/msg/CameraInfo",
+                        camera_info_msg(K, 160, 120, t), t)
+        return path
+
+    mixed = analyze(write(tmp_path / "mixed.mcap", range(16)))
+    head = analyze(write(tmp_path / "head.mcap", range(8)))
+    tail = analyze(write(tmp_path / "tail.mcap", range(8, 16)))
+    assert mixed["status"].tolist()[7:9] == ["ok", "size_changed"]
+    assert mixed["h_over_e"].iloc[9:].notna().all()
+    # the frontend's columns (the rules' baselines read the whole recording)
+    cols = [c for c in CAMERA_COLUMNS if not c.startswith("ms_")]
+    pd.testing.assert_frame_equal(mixed[cols].iloc[:8], head[cols])
+    later = mixed[cols].iloc[8:].reset_index(drop=True)
+    want = tail[cols].copy()
+    for c in [c for c in cols if c.endswith("_frame") or c == "frame"]:
+        want[c] = want[c] + 8  # the tail recording numbers its frames from 0
+    want.loc[0, "status"] = "size_changed"
+    pd.testing.assert_frame_equal(later, want)
+    notes = mixed.attrs["manifest"]["notes"]
+    assert any("the image size changed 1 time(s)" in n and "frame 8: 160x120 -> 320x240" in n
+               and "K scaled by 2" in n for n in notes), notes
+
+
 def test_rectified_images_are_read_with_p_not_k_and_d(tmp_path: Path) -> None:
     """image_rect topics carry images already rectified; their intrinsics are P's left 3x3 and
     no distortion (sensor_msgs/CameraInfo), while K and D describe the raw images. The raw

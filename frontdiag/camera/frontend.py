@@ -94,6 +94,7 @@ from frontdiag.camera.geometry import (
 )
 from frontdiag.camera.matching import match
 from frontdiag.camera.photometric import photometric
+from frontdiag.io.camera_info import fit_to_images
 from frontdiag.metrics import DEFAULT_FEATURE_BUDGET, keypoint_fill
 from frontdiag.records import (
     KP_INLIER,
@@ -110,6 +111,7 @@ NAN = float("nan")
 # two-interval readings are skipped where both intervals' largest parallaxes together stay under
 # this share of the line they are read against (``_two_intervals_short``)
 TWO_INTERVAL_MARGIN = 0.5
+SIZE_STATUS = "size_changed"  # first row after the image size changed: the frontend restarted
 # frames kept for the span reading at most: 0.33 s at 750 Hz, about 10 MB of descriptors and
 # points at 1000 keypoints; only stamps that do not advance come near it
 SPAN_HISTORY_MAX = 256
@@ -234,6 +236,13 @@ class CameraFrontend:
         self.intrinsics = intrinsics
         self._clock = clock
         self._K = None if intrinsics is None else np.asarray(intrinsics.K, np.float64)
+        # the calibration as given (for the images' first size), and fitted to each other size
+        # the images come in (:meth:`_fit_to_size`)
+        self._base = intrinsics
+        self._fits: dict[tuple[int, int], tuple[Intrinsics, str]] = {}
+        self.resized: str | None = None
+        """Set by ``process`` when the frame's size differs from the previous frame's:
+        ``"WxH -> W'xH'"`` and what became of K; None otherwise."""
         self._extractor = OrbExtractor(params.n_features, params.n_levels, params.scale_factor,
                                        params.fast_threshold, params.fast_threshold_min,
                                        params.grid_cols, params.grid_rows)
@@ -631,17 +640,59 @@ class CameraFrontend:
             return "parallax"
         return ""
 
+    def _fit_to_size(self, w: int, h: int) -> str:
+        """Use the calibration fitted to ``w x h`` images (as a CameraInfo made for another
+        size is: K scaled for the same view resized, kept with a note otherwise); returns what
+        became of K. A function of the size alone, so every window of a split run fits the
+        same K to the same frames."""
+        base = self._base
+        if base is None or base.width <= 0 or base.height <= 0:
+            return "no intrinsics" if base is None else "K kept (its image size is not known)"
+        if (w, h) == (base.width, base.height):
+            fit, words = base, "K as calibrated"
+        elif (w, h) in self._fits:
+            fit, words = self._fits[(w, h)]
+        else:
+            notes: list[str] = []
+            fit = fit_to_images(base, (w, h), notes)
+            words = notes[0] if notes else "K as calibrated"
+            self._fits[(w, h)] = fit, words
+        self.intrinsics = fit
+        self._K = np.asarray(fit.K, np.float64)
+        return words
+
     # ------------------------------------------------------------------ entry point
     def process(self, frame: CameraFrame) -> dict[str, Any]:
-        """One metrics row for ``frame``; never raises on a frame with nothing to match."""
+        """One metrics row for ``frame``; never raises on a frame with nothing to match.
+
+        A frame of another size than the previous one (the camera reconfigured: binning,
+        another resolution, another crop) starts the frontend afresh, as a gap does: nothing is
+        matched across the change, and K is fitted to the new size (status ``size_changed``).
+        """
         timer = StageTimer(self._clock)
         row = _row_template()
         self._state = self._flow = None
+        self.resized = None
+        gray = frame.gray
+        if gray.ndim == 2 and gray.size:
+            h, w = gray.shape
+            before = self._prev.gray.shape if self._prev is not None else None
+            resized = before is not None and len(before) == 2 and 0 not in before \
+                and before != gray.shape
+            if resized:
+                self.reset()  # closes the open interval with the K of its own frames
+            words = None
+            if self._base is not None and (self.intrinsics is None or (
+                    self.intrinsics.width, self.intrinsics.height) != (w, h)):
+                words = self._fit_to_size(w, h)
+            if resized and before is not None:
+                self.resized = f"{before[1]}x{before[0]} -> {w}x{h}: " + (
+                    words or ("no intrinsics" if self._base is None else "K as before"))
         with timer("detect"):
             cur = self._detect(frame, row)
         prev, kf = self._prev, self._kf
         if prev is None or kf is None:
-            row["status"] = "first_frame"
+            row["status"] = SIZE_STATUS if self.resized is not None else "first_frame"
             reason = "first_frame"
         else:
             kf.frames += 1

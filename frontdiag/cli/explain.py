@@ -14,6 +14,8 @@ STATUS_MEANING = {
     "first_frame": "the first frame: nothing to match it against yet, so most metrics are empty",
     "first_scan": "the first scan: nothing to register it against yet",
     "after_gap": "the first row after a gap in the recording: the frontend started afresh",
+    "size_changed": "the first row after the image size changed: the frontend started afresh, "
+                    "with K fitted to the new size (see the run's notes)",
     "no_features": "no keypoints were detected, so nothing else could be computed",
     "too_few_matches": "too few matches with the reference to estimate geometry",
     "no_intrinsics": "no camera intrinsics, so E, parallax and pose information were skipped",
