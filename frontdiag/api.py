@@ -17,7 +17,6 @@ import numpy as np
 import pandas as pd
 
 from frontdiag import __version__
-from frontdiag.camera.frontend import SIZE_STATUS
 from frontdiag.errors import (
     ConfigError,
     DecodeError,
@@ -38,7 +37,7 @@ from frontdiag.io.images import is_video_message
 from frontdiag.io.readers import Recording, open_recording, recording_size
 from frontdiag.io.topics import TopicChoice, choose_topics
 from frontdiag.metrics import CAMERA_COLUMNS, LIDAR_COLUMNS
-from frontdiag.records import Intrinsics
+from frontdiag.records import SIZE_STATUS, Intrinsics
 from frontdiag.runner import (
     GAP_STATUS,
     FrameSink,

@@ -72,6 +72,9 @@ class LidarScan:
 
 
 # keypoint states in CameraAnnotation.state
+# status of the first camera row after the image size changed: the frontend started afresh
+SIZE_STATUS = "size_changed"
+
 KP_UNTRACKED = 0  # no correspondence with the reference keyframe
 KP_INLIER = 1  # an essential-matrix inlier against the reference
 KP_OUTLIER = 2  # a correspondence the essential matrix rejected

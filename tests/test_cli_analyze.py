@@ -436,7 +436,8 @@ def test_a_change_of_image_size_restarts_the_frontend_with_k_fitted(tmp_path: Pa
     images are 320x240, the CameraInfo still says 160x120. Nothing is matched across the
     change; the frontend starts afresh there with K scaled to the new size, so the rows from
     frame 8 on are those of a recording that starts at frame 8 (whose K is scaled the same way
-    before the run), and the rows before it those of a recording that ends at frame 7."""
+    before the run), and the rows before it those of a recording that ends at frame 7, the
+    recording's own levels (the rules' baselines) included."""
     import cv2
     from recording_factory import DT, K
 
@@ -460,18 +461,47 @@ def test_a_change_of_image_size_restarts_the_frontend_with_k_fitted(tmp_path: Pa
     tail = analyze(write(tmp_path / "tail.mcap", range(8, 16)))
     assert mixed["status"].tolist()[7:9] == ["ok", "size_changed"]
     assert mixed["h_over_e"].iloc[9:].notna().all()
-    # the frontend's columns (the rules' baselines read the whole recording)
-    cols = [c for c in CAMERA_COLUMNS if not c.startswith("ms_")]
+    # every column, the rules' baselines included: the recording's own levels are read on each
+    # side of the change apart. Not the verdicts: a rule's persistence (k of n rows) runs over
+    # the topic's rows across a change, as it does across a gap
+    cols = [c for c in mixed.columns
+            if not c.startswith("ms_") and c not in ("conditions", "rules", "verdict")]
     pd.testing.assert_frame_equal(mixed[cols].iloc[:8], head[cols])
     later = mixed[cols].iloc[8:].reset_index(drop=True)
     want = tail[cols].copy()
     for c in [c for c in cols if c.endswith("_frame") or c == "frame"]:
-        want[c] = want[c] + 8  # the tail recording numbers its frames from 0
+        want[c] = want[c].where(want[c] < 0, want[c] + 8)  # the tail numbers its frames from 0
+    want["t_rel_s"] = want["t_rel_s"] + 8 * DT / 1e9  # and its time from its own start
     want.loc[0, "status"] = "size_changed"
     pd.testing.assert_frame_equal(later, want)
     notes = mixed.attrs["manifest"]["notes"]
     assert any("the image size changed 1 time(s)" in n and "frame 8: 160x120 -> 320x240" in n
                and "K scaled by 2" in n for n in notes), notes
+
+
+def test_a_size_a_pixel_off_is_the_same_view(tmp_path: Path) -> None:
+    """Photographs of one camera, two of them saved a pixel larger (1281x721 among 1280x720,
+    as in a published calibration set): the same view, matched on as before, K kept."""
+    import cv2
+    from recording_factory import DT, K
+
+    from frontdiag.api import analyze
+    from frontdiag.io.writer import RecordingWriter, camera_info_msg
+
+    path = tmp_path / "pad.mcap"
+    with RecordingWriter(path, "mcap") as w:
+        for i in range(8):
+            t = T0 + i * DT
+            img = frame(i, 0, shift=2)
+            if i in (3, 4):
+                img = cv2.copyMakeBorder(img, 0, 1, 0, 1, cv2.BORDER_REPLICATE)
+            w.write("/cam/image_raw", "sensor_msgs/msg/Image", image_msg(img, "mono8", t), t)
+            w.write("/cam/camera_info", "sensor_msgs/msg/CameraInfo",
+                    camera_info_msg(K, 160, 120, t), t)
+    t = analyze(path)
+    assert t["status"].tolist() == ["first_frame"] + ["ok"] * 7
+    assert t["width"].tolist()[2:6] == [160, 161, 161, 160]
+    assert not any("size changed" in n for n in t.attrs["manifest"]["notes"])
 
 
 def test_rectified_images_are_read_with_p_not_k_and_d(tmp_path: Path) -> None:

@@ -71,6 +71,7 @@ import cv2
 import numpy as np
 
 from frontdiag.camera.features import (
+    EDGE,
     ENTROPY_GRID,
     MIN_ENTROPY_POINTS,
     Features,
@@ -101,6 +102,7 @@ from frontdiag.records import (
     KP_OUTLIER,
     KP_TRACKED,
     KP_UNTRACKED,
+    SIZE_STATUS,
     CameraAnnotation,
     CameraFrame,
     Intrinsics,
@@ -111,10 +113,16 @@ NAN = float("nan")
 # two-interval readings are skipped where both intervals' largest parallaxes together stay under
 # this share of the line they are read against (``_two_intervals_short``)
 TWO_INTERVAL_MARGIN = 0.5
-SIZE_STATUS = "size_changed"  # first row after the image size changed: the frontend restarted
 # frames kept for the span reading at most: 0.33 s at 750 Hz, about 10 MB of descriptors and
 # points at 1000 keypoints; only stamps that do not advance come near it
 SPAN_HISTORY_MAX = 256
+# Images whose size differs by at most this many pixels a side from the previous frame's (or
+# from the calibration's) show the same view: an editor's or a driver's crop or pad by a pixel
+# or two (a set of 1280x720 photographs holding some 1281x721 ones). K describes them within
+# that many pixels of principal point, under the 2.45 px homography threshold at the frontend's
+# 1 px localisation noise, so the frontend goes on matching and keeps K; a larger change is
+# another camera setting and restarts it.
+SAME_VIEW_PX = 2
 
 
 @dataclass(frozen=True)
@@ -226,6 +234,12 @@ def _row_template() -> dict[str, Any]:
     }
 
 
+def _measurable(shape: tuple[int, ...]) -> bool:
+    """Whether a grey frame of this shape is large enough for the extractor to detect on (a
+    smaller one reads ``no_features``, whatever its size)."""
+    return len(shape) == 2 and min(shape) > 2 * EDGE + 2
+
+
 class CameraFrontend:
     """Stateful per-recording frontend; ``process`` returns one metrics row per frame."""
 
@@ -241,8 +255,8 @@ class CameraFrontend:
         self._base = intrinsics
         self._fits: dict[tuple[int, int], tuple[Intrinsics, str]] = {}
         self.resized: str | None = None
-        """Set by ``process`` when the frame's size differs from the previous frame's:
-        ``"WxH -> W'xH'"`` and what became of K; None otherwise."""
+        """Set by ``process`` when the frame's size differs from the reference keyframe's (by
+        more than SAME_VIEW_PX): ``"WxH -> W'xH': "`` and what became of K; None otherwise."""
         self._extractor = OrbExtractor(params.n_features, params.n_levels, params.scale_factor,
                                        params.fast_threshold, params.fast_threshold_min,
                                        params.grid_cols, params.grid_rows)
@@ -648,7 +662,7 @@ class CameraFrontend:
         base = self._base
         if base is None or base.width <= 0 or base.height <= 0:
             return "no intrinsics" if base is None else "K kept (its image size is not known)"
-        if (w, h) == (base.width, base.height):
+        if abs(w - base.width) <= SAME_VIEW_PX and abs(h - base.height) <= SAME_VIEW_PX:
             fit, words = base, "K as calibrated"
         elif (w, h) in self._fits:
             fit, words = self._fits[(w, h)]
@@ -665,28 +679,31 @@ class CameraFrontend:
     def process(self, frame: CameraFrame) -> dict[str, Any]:
         """One metrics row for ``frame``; never raises on a frame with nothing to match.
 
-        A frame of another size than the previous one (the camera reconfigured: binning,
-        another resolution, another crop) starts the frontend afresh, as a gap does: nothing is
-        matched across the change, and K is fitted to the new size (status ``size_changed``).
+        A frame of another size than the reference keyframe's (the camera reconfigured: binning,
+        another resolution, another crop; more than SAME_VIEW_PX a side) starts the frontend
+        afresh, as a gap does: nothing is matched across the change, and K is fitted to the new
+        size (status ``size_changed``).
         """
         timer = StageTimer(self._clock)
         row = _row_template()
         self._state = self._flow = None
         self.resized = None
         gray = frame.gray
-        if gray.ndim == 2 and gray.size:
+        if _measurable(gray.shape):
             h, w = gray.shape
-            before = self._prev.gray.shape if self._prev is not None else None
-            resized = before is not None and len(before) == 2 and 0 not in before \
-                and before != gray.shape
+            # the frame matched against: the reference keyframe's (a frame too small to hold
+            # a feature, a decoder's glitch, never becomes one of another size)
+            ref = self._kf.view.gray.shape if self._kf is not None else None
+            resized = ref is not None and _measurable(ref) and (
+                abs(ref[0] - h) > SAME_VIEW_PX or abs(ref[1] - w) > SAME_VIEW_PX)
             if resized:
                 self.reset()  # closes the open interval with the K of its own frames
             words = None
             if self._base is not None and (self.intrinsics is None or (
                     self.intrinsics.width, self.intrinsics.height) != (w, h)):
                 words = self._fit_to_size(w, h)
-            if resized and before is not None:
-                self.resized = f"{before[1]}x{before[0]} -> {w}x{h}: " + (
+            if resized and ref is not None:
+                self.resized = f"{ref[1]}x{ref[0]} -> {w}x{h}: " + (
                     words or ("no intrinsics" if self._base is None else "K as before"))
         with timer("detect"):
             cur = self._detect(frame, row)

@@ -19,7 +19,9 @@ needs no warm-up: the first seconds of a recording borrow their level from the f
 follow. Where more than ``gap_intervals`` median frame intervals pass without a row (a cut
 between areas, a paused recording, dropped messages), the scene after it may be another: the
 window stops at the gap, so each stretch between gaps has a level of its own, and the first
-frames after a gap borrow theirs from the frames after them. Where fewer than ``min_rows``
+frames after a gap borrow theirs from the frames after them. A row that starts afresh for
+another reason (``breaks``: the camera's image size changed, and with it every scene-dependent
+level) cuts the window in the same way. Where fewer than ``min_rows``
 rows, or less than ``min_share`` of the window's readable rows, are left to form it, the
 baseline is NaN and only the absolute line reads the row: a recording that is one long episode
 (an aisle from its first frame to its last) has no healthy level of its own to compare with.
@@ -36,13 +38,14 @@ QUARTILE_TO_SIGMA = 0.6745  # median - lower quartile of a Gaussian, in standard
 
 def rolling_baseline(t_s: np.ndarray, x: np.ndarray, window_s: float, min_rows: int,
                      min_share: float, exclude: np.ndarray | None = None,
-                     gap_intervals: float = 5.0, rows: np.ndarray | None = None
-                     ) -> tuple[np.ndarray, np.ndarray]:
+                     gap_intervals: float = 5.0, rows: np.ndarray | None = None,
+                     breaks: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(lower quartile, robust sigma) per row over the other non-excluded rows within
     window_s / 2.
 
     Rows must be in time order; NaN values and excluded rows never enter a baseline. With
-    ``rows`` (indices), only those rows are computed; the others stay NaN.
+    ``rows`` (indices), only those rows are computed; the others stay NaN. ``breaks`` (bool
+    per row) marks rows that start a new stretch, as a gap before them does.
     """
     n = len(x)
     med = np.full(n, np.nan)
@@ -56,9 +59,12 @@ def rolling_baseline(t_s: np.ndarray, x: np.ndarray, window_s: float, min_rows: 
     half = window_s / 2.0
     lo = np.searchsorted(t_s, t_s - half, side="left")
     hi = np.searchsorted(t_s, t_s + half, side="right")
+    gap = np.zeros(n, bool) if breaks is None else np.asarray(breaks, bool).copy()
     if n > 2:  # stretches between gaps: the window does not cross one
         dt = np.diff(t_s)
-        gap = np.concatenate([[False], dt > gap_intervals * float(np.median(dt))])
+        gap[1:] |= dt > gap_intervals * float(np.median(dt))
+    if gap[1:].any():
+        gap[0] = False
         seg = np.cumsum(gap)
         first = np.searchsorted(seg, seg, side="left")
         last = np.searchsorted(seg, seg, side="right")
@@ -80,16 +86,18 @@ def rolling_baseline(t_s: np.ndarray, x: np.ndarray, window_s: float, min_rows: 
 
 def widening_baseline(t_s: np.ndarray, x: np.ndarray, window_s: float, min_rows: int,
                       min_share: float, exclude: np.ndarray | None = None,
-                      gap_intervals: float = 5.0, max_window_s: float = np.inf
+                      gap_intervals: float = 5.0, max_window_s: float = np.inf,
+                      breaks: np.ndarray | None = None
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``rolling_baseline``, and where its window leaves a row without a level, the nearest
     level of the recording's own: the window doubles until one forms, until it spans the whole
-    recording (never across a gap) or until it reaches ``max_window_s``.
+    recording (never across a gap or a break) or until it reaches ``max_window_s``.
 
     Returns (lower quartile, robust sigma, window used in seconds); all NaN on the rows where
     no level formed at any width.
     """
-    base, sig = rolling_baseline(t_s, x, window_s, min_rows, min_share, exclude, gap_intervals)
+    base, sig = rolling_baseline(t_s, x, window_s, min_rows, min_share, exclude, gap_intervals,
+                                 breaks=breaks)
     used = np.where(np.isnan(base), np.nan, float(window_s))
     n = len(x)
     if n < 2:
@@ -102,7 +110,7 @@ def widening_baseline(t_s: np.ndarray, x: np.ndarray, window_s: float, min_rows:
         w = min(2.0 * w, whole)
         todo = np.flatnonzero(np.isnan(base))
         b, sg = rolling_baseline(t_s, x, w, min_rows, min_share, exclude, gap_intervals,
-                                 rows=todo)
+                                 rows=todo, breaks=breaks)
         got = todo[~np.isnan(b[todo])]
         base[got], sig[got], used[got] = b[got], sg[got], w
     return base, sig, used

@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from frontdiag.camera.geometry import homography_threshold_px
+from frontdiag.records import SIZE_STATUS
 from frontdiag.verdicts.baseline import rolling_baseline, widening_baseline
 
 Params = Mapping[str, Any]
@@ -118,11 +119,20 @@ def _wide_interval(df: pd.DataFrame, p: Params) -> np.ndarray:
         return frame_interval_s(df) > p["max_interval_s"]
 
 
+def _restarts(df: pd.DataFrame) -> np.ndarray:
+    """Rows where the camera's image size changed: the scene-dependent levels before them
+    (rejection, residual, feature count) belong to another camera setting."""
+    if "status" not in df.columns:
+        return np.zeros(len(df), dtype=bool)
+    return (df["status"].astype(str) == SIZE_STATUS).to_numpy()
+
+
 def _scene_baseline(df: pd.DataFrame, p: Params, metric: str, exclude: np.ndarray
                     ) -> tuple[np.ndarray, np.ndarray]:
     t = col(df, "t_ns") / 1e9
     return rolling_baseline(t, col(df, metric), p["baseline_window_s"],
-                            int(p["baseline_min_rows"]), p["baseline_min_share"], exclude)
+                            int(p["baseline_min_rows"]), p["baseline_min_share"], exclude,
+                            breaks=_restarts(df))
 
 
 def _matching_baseline(df: pd.DataFrame, p: Params) -> pd.DataFrame:
@@ -139,7 +149,7 @@ def _matching_baseline(df: pd.DataFrame, p: Params) -> pd.DataFrame:
     # baseline_widen_max_s keeps its window)
     base, sig, used = widening_baseline(
         col(df, "t_ns") / 1e9, rej, p["baseline_window_s"], int(p["baseline_min_rows"]),
-        p["baseline_min_share"], exclude, max_window_s=_widen_max_s(p))
+        p["baseline_min_share"], exclude, max_window_s=_widen_max_s(p), breaks=_restarts(df))
     kp_base, _ = _scene_baseline(df, p, "n_keypoints", _wide_interval(df, p))
     return pd.DataFrame({"ratio_reject_base": base, "ratio_reject_base_sigma": sig,
                          "ratio_reject_base_window_s": used, "n_keypoints_base": kp_base})
