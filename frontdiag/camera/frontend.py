@@ -116,8 +116,8 @@ TWO_INTERVAL_MARGIN = 0.5
 # frames kept for the span reading at most: 0.33 s at 750 Hz, about 10 MB of descriptors and
 # points at 1000 keypoints; only stamps that do not advance come near it
 SPAN_HISTORY_MAX = 256
-# Images whose size differs by at most this many pixels a side from the previous frame's (or
-# from the calibration's) show the same view: an editor's or a driver's crop or pad by a pixel
+# Images whose size differs by at most this many pixels a side from the reference keyframe's
+# (or from the calibration's) show the same view: an editor's or a driver's crop or pad by a pixel
 # or two (a set of 1280x720 photographs holding some 1281x721 ones). K describes them within
 # that many pixels of principal point, under the 2.45 px homography threshold at the frontend's
 # 1 px localisation noise, so the frontend goes on matching and keeps K; a larger change is
