@@ -156,6 +156,33 @@ def test_a_damaged_picture_is_skipped_and_the_run_goes_on(tmp_path: Path) -> Non
     assert res.table["frame"].max() == 29  # the keyframe at 20 resynchronises
 
 
+def test_a_stream_restarted_with_another_codec_is_decoded_from_its_first_keyframe(
+        tmp_path: Path) -> None:
+    """An encoder restarted mid-recording with H.265 instead of H.264 (keyframes every 6): the
+    H.265 pictures are decoded from their first keyframe, in order. A first message naming the
+    wrong codec delays decoding to the next keyframe of the right one, and no further."""
+    frames = _video_frames(24)
+    packets = encode_video(frames[:12], 6) + encode_video(frames[12:], 6, encoder="libx265")
+    fmts = ["h264"] * 12 + ["h265"] * 12
+
+    def write(path: Path, fmts: list[str]) -> Path:
+        return write_protobuf(path, iter(
+            ("/cam/video", "CompressedVideo", T0 + i * DT,
+             {"frame_id": "cam", "data": p, "format": f})
+            for i, (p, f) in enumerate(zip(packets, fmts, strict=True))))
+
+    df = run_analysis(write(tmp_path / "switch.mcap", fmts), AnalysisOptions()).table
+    assert df["frame"].tolist() == list(range(24))
+    want = np.array([frames[f].mean() for f in df["frame"]])
+    assert np.abs(df["mean_intensity"].to_numpy() - want).max() < 1.0
+    res = run_analysis(write(tmp_path / "mislabelled.mcap", ["h265", *fmts[1:]]),
+                       AnalysisOptions())
+    assert res.table["frame"].tolist() == list(range(6, 24))
+    cam = res.manifest["counts"]["/cam/video"]
+    assert cam["skipped_undecodable"] == 6
+    assert "decoding starts again at the first h264 keyframe" in cam["last_error"]
+
+
 def test_the_report_rereads_a_video_picture_from_its_keyframe(tmp_path: Path) -> None:
     from frontdiag.report.frame_image import read_pixels
 

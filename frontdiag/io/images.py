@@ -109,7 +109,11 @@ class GrayConverter:
         msgtype = foxglove.ros_type(msgtype)
         if is_video_message(msg, msgtype):
             fmt = video_format(msg, msgtype)
-            if self.video is None:
+            # a stream restarted with another codec (or a first message naming the wrong one)
+            # is decoded anew from the new codec's first keyframe (or at once, where keyframes
+            # cannot be told); until then its messages are skipped with the reason
+            if self.video is None or (fmt != self.video.fmt and fmt in VIDEO_CODECS
+                                      and is_keyframe(msg.data, fmt) is not False):
                 self.video = VideoDecoder(self.topic, fmt)
             return self.video(msg.data, fmt), f"video/{fmt or '?'}"
         if msgtype.endswith("CompressedImage"):
@@ -210,7 +214,8 @@ class VideoDecoder:
     def __call__(self, data: Any, fmt: str) -> np.ndarray:
         if fmt != self.fmt:
             raise DecodeError(self.topic, "format",
-                              f"changes from {self.fmt!r} to {fmt!r} within the topic")
+                              f"changes from {self.fmt!r} to {fmt!r} within the topic; "
+                              f"decoding starts again at the first {fmt} keyframe")
         buf = bytes(data)
         if not buf:
             raise DecodeError(self.topic, "data", "empty video message")
