@@ -338,6 +338,17 @@ def _stream_notes(path: Path, rec: Recording, run: StreamRun,
         if st.gaps:
             notes.append(f"{stream.topic}: {st.gaps} gap(s) in the recording; the frontend "
                          f"started afresh after each (rows with status {GAP_STATUS})")
+        if st.repeated_messages:
+            notes.append(f"{stream.topic}: {st.repeated_messages} message(s) repeated the "
+                         f"picture before them with the same stamp (first: frame "
+                         f"{st.first_repeat}), as where a topic was recorded twice or relayed "
+                         "back: not analysed")
+        if st.identical_pictures:
+            notes.append(f"{stream.topic}: {st.identical_pictures} picture(s) equal the one "
+                         f"before them pixel for pixel, with a later stamp (first: frame "
+                         f"{st.first_identical}): a camera that stalled while its driver went on "
+                         "stamping, or a noise-free simulated camera standing still; analysed "
+                         "as they come (a stall reads as standing still)")
         if st.size_changes:
             shown = "; ".join(st.size_changes[:3])
             more = f"; and {len(st.size_changes) - 3} more" if len(st.size_changes) > 3 else ""
@@ -371,10 +382,13 @@ def _coverage(run: StreamRun, table: pd.DataFrame) -> dict[str, dict[str, Any]]:
         empty = status.isin(NO_RESULT) | status.str.startswith("error")
         present = int(stream.stats.messages)
         evaluated = int((~empty).sum())
+        # a message delivered twice is one frame (TopicStats.repeated_messages)
+        repeats = int(stream.stats.repeated_messages)
+        distinct = present - repeats
         out[stream.topic] = {
             "sensor": sensor, "frames_present": present, "rows": len(rows),
-            "frames_analysed": evaluated,
-            "share": round(evaluated / present, 4) if present else 0.0,
+            "frames_analysed": evaluated, "repeats": repeats,
+            "share": round(evaluated / distinct, 4) if distinct > 0 else 0.0,
             "no_result": {str(k): int(v) for k, v in status[empty].value_counts().items()},
         }
     return out

@@ -333,6 +333,11 @@ def _merge_counts(acc: SensorStream | None, cur: SensorStream | None) -> SensorS
         non_monotonic_stamps=a.non_monotonic_stamps + b.non_monotonic_stamps,
         zero_stamps=a.zero_stamps + b.zero_stamps,
         last_t_ns=b.last_t_ns if b.last_t_ns is not None else a.last_t_ns,
-        gaps=a.gaps + b.gaps, size_changes=a.size_changes + b.size_changes)
+        gaps=a.gaps + b.gaps, size_changes=a.size_changes + b.size_changes,
+        repeated_messages=a.repeated_messages + b.repeated_messages,
+        identical_pictures=a.identical_pictures + b.identical_pictures,
+        first_repeat=a.first_repeat if a.first_repeat is not None else b.first_repeat,
+        first_identical=a.first_identical if a.first_identical is not None
+        else b.first_identical)
     acc.index = cur.index
     return acc

@@ -19,6 +19,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
+import numpy as np
+
 from frontdiag.errors import ConfigError, DecodeError, FrontdiagError
 from frontdiag.io.decode import decode_camera, decode_lidar, header_stamp_ns, odometry_pose
 from frontdiag.io.images import GrayConverter, is_keyframe, is_video_topic, video_format
@@ -52,6 +54,12 @@ class TopicStats:
     gaps: int = 0  # gaps in the recording after which the frontend started afresh
     # where the image size changed (the frontend started afresh): "frame N: WxH -> W'xH': K ..."
     size_changes: list[str] = field(default_factory=list)
+    # pictures that repeated the previous one exactly: with the same stamp (the message again,
+    # not analysed) and with a later stamp (analysed), and the first frame of each
+    repeated_messages: int = 0
+    identical_pictures: int = 0
+    first_repeat: int | None = None
+    first_identical: int | None = None
 
 
 @dataclass(frozen=True)
@@ -82,6 +90,8 @@ class SensorStream:
         self.owned = True  # the current message counts (not warm-up)
         self.draining = False  # past the window: frames only complete rows already made
         self.sink: FrameSink | None = None
+        # the last picture decoded and its stamp (``repeats``)
+        self._picture: tuple[np.ndarray | None, int] = (None, 0)
         self.decoders: dict[str, Any] = {}  # per-topic decoder state (Velodyne's sensor model)
 
     def analyse(self, record: CameraFrame | LidarScan, frontend: Any, sensor: str,
@@ -146,6 +156,43 @@ class SensorStream:
             self.stats.non_monotonic_stamps += 1
         self.stats.last_t_ns = t
         return t
+
+    def repeats(self, gray: np.ndarray, msg: Any, log_ns: int) -> bool:
+        """Whether this message repeats the previous one: the same picture, pixel for pixel,
+        with the same stamp. Such a copy (the topic recorded twice, a relay publishing it back)
+        is counted and not analysed: analysed, it would read as a frame that did not move and
+        matched perfectly, ratio-test rejection 0 against a scene's 0.3-0.7, and the readings
+        against the recording's own level go wrong (docs/camera.md, "Repeated pictures").
+
+        The same picture with a later stamp is analysed, and counted for the notes: a stalled
+        camera whose driver goes on stamping its last picture looks exactly like a noise-free
+        simulated camera standing still, which is a real observation. Uniform pictures (all
+        black) repeat without any fault and are not counted.
+        """
+        try:
+            t = header_stamp_ns(msg) or log_ns
+        except AttributeError:
+            t = log_ns
+        prev, prev_t = self._picture
+        if prev is None or prev.shape != gray.shape or gray.ndim != 2 or gray.size == 0 \
+                or not (np.array_equal(prev[::16, ::16], gray[::16, ::16])
+                        and np.array_equal(prev, gray)):
+            # a sparse sample first: different pictures nearly always differ there
+            self._picture = (gray, t)
+            return False
+        st = self.stats
+        if t == prev_t:
+            if self.owned:
+                st.repeated_messages += 1
+                if st.first_repeat is None:
+                    st.first_repeat = self.index
+            return True
+        self._picture = (gray, t)
+        if self.owned and int(gray.min()) != int(gray.max()):
+            st.identical_pictures += 1
+            if st.first_identical is None:
+                st.first_identical = self.index
+        return False
 
     def skip(self, exc: Exception) -> None:
         if not self.owned:
@@ -417,7 +464,8 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
                         if video and cam_stream.index >= feed_from:
                             feed_video(rec, raw, conv)
                         continue
-                    frame = decode_camera(rec, raw, cam_stream, conv)
+                    frame = decode_camera(rec, raw, cam_stream, conv,
+                                          None if video else cam_stream.repeats)
                     if frame is None:
                         # a video waits for its first keyframe, however many messages that is
                         if not (video and conv.video is not None and conv.video.pictures == 0):

@@ -504,6 +504,76 @@ def test_a_size_a_pixel_off_is_the_same_view(tmp_path: Path) -> None:
     assert not any("size changed" in n for n in t.attrs["manifest"]["notes"])
 
 
+def _repeating(path: Path, n: int, repeat: dict[int, tuple[int, int]]) -> Path:
+    """Frames 0..n-1 each followed by the messages ``repeat[i] = (copies, stamp step ns)``
+    give: the same picture again, stamped ``step`` later each time (0: the same stamp)."""
+    from recording_factory import DT, K
+
+    from frontdiag.io.writer import RecordingWriter, camera_info_msg
+
+    with RecordingWriter(path, "mcap") as w:
+        log = T0
+        for i in range(n):
+            img = frame(i, 0, shift=2)
+            t = T0 + i * DT
+            copies, step = repeat.get(i, (0, 0))
+            for c in range(copies + 1):
+                log += 1_000_000
+                w.write("/cam/image_raw", "sensor_msgs/msg/Image",
+                        image_msg(img, "mono8", t + c * step), log)
+                w.write("/cam/camera_info", "sensor_msgs/msg/CameraInfo",
+                        camera_info_msg(K, 160, 120, t + c * step), log)
+    return path
+
+
+def test_repeated_pictures_are_counted_not_analysed(tmp_path: Path) -> None:
+    """Every message twice (a topic recorded twice): analysed, each copy would read as a frame
+    that did not move and matched perfectly (rejection 0). The copies are skipped and noted,
+    and the rows are the single recording's. The same picture with later stamps (a stalled
+    camera, or a noise-free simulation standing still: they cannot be told apart) is analysed
+    and noted."""
+    from frontdiag.api import analyze
+
+    one = analyze(_repeating(tmp_path / "one.mcap", 12, {}))
+    twice = analyze(_repeating(tmp_path / "twice.mcap", 12, {i: (1, 0) for i in range(12)}))
+    assert twice["frame"].tolist() == list(range(0, 24, 2))
+    # everything but the frame numbers (message positions) and the time since the recording's
+    # first message (its log clock, which the copies advance)
+    cols = [c for c in one.columns
+            if not c.startswith("ms_") and not c.endswith("frame") and c != "t_rel_s"]
+    pd.testing.assert_frame_equal(one[cols], twice[cols])
+    man = twice.attrs["manifest"]
+    assert man["coverage"]["/cam/image_raw"]["repeats"] == 12
+    assert man["coverage"]["/cam/image_raw"]["share"] == 1.0
+    assert any("12 message(s) repeated the picture before them with the same stamp (first: "
+               "frame 1)" in n for n in man["notes"]), man["notes"]
+    assert not any("non-monotonic" in n for n in man["notes"])
+
+    stall = analyze(_repeating(tmp_path / "stall.mcap", 12, {5: (3, 10_000_000)}))
+    assert stall["frame"].tolist() == list(range(15))
+    assert any("3 picture(s) equal the one before them pixel for pixel, with a later stamp "
+               "(first: frame 6)" in n for n in stall.attrs["manifest"]["notes"])
+
+
+def test_a_repeated_uniform_picture_is_analysed(tmp_path: Path) -> None:
+    """A black view (a lens cap) repeats without any fault: every frame is a row, and no
+    note calls it a stall."""
+    from recording_factory import DT
+
+    from frontdiag.api import analyze
+    from frontdiag.io.writer import RecordingWriter
+
+    path = tmp_path / "black.mcap"
+    with RecordingWriter(path, "mcap") as w:
+        for i in range(6):
+            t = T0 + i * DT
+            w.write("/cam/image_raw", "sensor_msgs/msg/Image",
+                    image_msg(np.zeros((120, 160), np.uint8), "mono8", t), t)
+    t = analyze(path, intrinsics="100,100,80,60")
+    assert len(t) == 6
+    assert not any("pixel for pixel" in n for n in t.attrs["manifest"]["notes"])
+
+
 def test_rectified_images_are_read_with_p_not_k_and_d(tmp_path: Path) -> None:
     """image_rect topics carry images already rectified; their intrinsics are P's left 3x3 and
     no distortion (sensor_msgs/CameraInfo), while K and D describe the raw images. The raw

@@ -130,8 +130,10 @@ def render_analysis(console: Console, result: Any, out_dir: Path | None,
             if line:
                 console.print(f"[dim]{escape(line)}[/]", highlight=False)
     for topic, c in (man.get("coverage") or {}).items():
+        repeats = c.get("repeats") or 0
+        also = f" ({repeats} repeated the picture before: see the notes)" if repeats else ""
         line = escape(f"{c['sensor']} {topic}: {c['frames_analysed']} of {c['frames_present']} "
-                      "frames measured")
+                      f"frames measured{also}")
         console.print(f"[dim]coverage[/] {line}", highlight=False)
     if man.get("intrinsics"):
         console.print(f"[dim]intrinsics: {escape(str(man['intrinsics']['source']))}[/]")

@@ -7,6 +7,7 @@ the deserialiser cannot parse becomes a :class:`~frontdiag.errors.DecodeError` t
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import replace
 from typing import Any, Protocol
 
@@ -60,12 +61,17 @@ def pose_matrix(position: Any, quat_xyzw: Any) -> np.ndarray:
 
 
 def decode_camera(rec: Recording, raw: RawMessage, stream: StampSink,
-                  conv: GrayConverter) -> CameraFrame | None:
+                  conv: GrayConverter, repeats: Callable[[np.ndarray, Any, int], bool] | None
+                  = None) -> CameraFrame | None:
+    """The message's grey picture, or None where it was skipped (undecodable, reported to
+    ``stream``; or a repeat of the previous picture, which ``repeats`` counts)."""
     t0 = time.perf_counter()
     try:
         msg = rec.deserialize(raw)
-        t_ns = stream.stamp(msg, raw.log_ns)
         gray, encoding = conv(msg, raw.msgtype)
+        if repeats is not None and repeats(gray, msg, raw.log_ns):
+            return None
+        t_ns = stream.stamp(msg, raw.log_ns)
     except DecodeError as exc:
         stream.skip(exc)
         return None
