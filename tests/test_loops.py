@@ -899,3 +899,48 @@ def test_max_rounds_count_from_the_first_converged_map(
     else:
         assert res.timings["map_rounds"] == 2
         assert (t.loc[true, "verdict"] == "warn").sum() == 8
+
+
+def _renumbered(src: Path, dest: Path, stride: int, vertices: bool) -> Path:
+    """The graph with every id multiplied by ``stride`` (keyframes numbered by their frame),
+    with a VERTEX_SE2 line per pose (at the origin) when ``vertices``."""
+    out = []
+    ids: set[int] = set()
+    for line in src.read_text().splitlines():
+        tok = line.split()
+        i, j = int(tok[1]) * stride, int(tok[2]) * stride
+        ids |= {i, j}
+        out.append(" ".join([tok[0], str(i), str(j), *tok[3:]]))
+    head = [f"VERTEX_SE2 {v} 0 0 0" for v in sorted(ids)] if vertices else []
+    dest.write_text("\n".join(head + out) + "\n")
+    return dest
+
+
+def test_ids_need_not_be_consecutive_numbers(tmp_path: Path) -> None:
+    """Keyframe ids 0, 7, 14, ...: the odometry chain joins vertices adjacent in id order, and
+    the audit is the one of the same graph numbered 0, 1, 2, ... (it stopped on an empty map
+    when odometry was read as ids differing by 1)."""
+    sq = _square_graph(tmp_path / "sq.g2o", [(5, 45, 0.0), (6, 46, 0.0), (7, 47, 4.0)])
+    a = audit(read_graph(sq)).table
+    b = audit(read_graph(_renumbered(sq, tmp_path / "by7.g2o", 7, vertices=True))).table
+    assert (b["i"] == 7 * a["i"]).all() and (b["j"] == 7 * a["j"]).all()
+    cols = [c for c in a.columns if c not in ("i", "j", "line")]
+    pd.testing.assert_frame_equal(a[cols], b[cols])
+    assert a["verdict"].tolist() == ["ok", "ok", "fail"]
+
+
+def test_an_edge_to_an_undefined_vertex_is_refused_naming_it(tmp_path: Path, capsys) -> None:
+    sq = _renumbered(_square_graph(tmp_path / "sq.g2o", [(5, 45, 0.0)]), tmp_path / "v.g2o", 1,
+                     vertices=True)
+    sq.write_text(sq.read_text() + "EDGE_SE2 5 999 1 0 0 100 0 0 100 0 10000\n")
+    assert main(["loops", str(sq), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "edge 5->999: vertex 999 has no VERTEX line" in err and "Traceback" not in err
+
+
+def test_a_graph_without_odometry_is_refused(tmp_path: Path, capsys) -> None:
+    path = tmp_path / "loops_only.g2o"
+    path.write_text(_edge2d(0, 40, 0.1, 0.0, 0.0, (100.0, 0.0, 0.0, 100.0, 0.0, 1e4)) + "\n"
+                    + _edge2d(2, 42, 0.1, 0.0, 0.0, (100.0, 0.0, 0.0, 100.0, 0.0, 1e4)) + "\n")
+    assert main(["loops", str(path), "--out", str(tmp_path / "o")]) == 2
+    assert "no odometry" in capsys.readouterr().err

@@ -57,8 +57,9 @@ def loops_cmd(
     layout: str = typer.Option("auto", "--layout", metavar="[auto|g2o|toro]",
                                help="2D information order: auto (by tag), g2o or toro."),
     odom_max_gap: int = typer.Option(1, "--odom-max-gap",
-                                     help="Edges spanning at most this many ids are odometry "
-                                          "(not audited); the chain uses consecutive ids."),
+                                     help="Edges spanning at most this many vertices in id "
+                                          "order are odometry (not audited); the chain joins "
+                                          "vertices adjacent in id order."),
     rules_file: Path | None = typer.Option(None, "--rules",
                                            help="Loop rules TOML instead of rules/loops/loops.toml."),
     explain: str | None = typer.Option(None, "--explain", metavar="ID",

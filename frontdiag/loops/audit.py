@@ -27,7 +27,7 @@ import pandas as pd
 
 from frontdiag.loops import pcm
 from frontdiag.loops.chain import Chain, build_chain
-from frontdiag.loops.graph import PoseGraph
+from frontdiag.loops.graph import GraphError, PoseGraph
 from frontdiag.loops.rules import LoopRules, load_loop_rules
 from frontdiag.loops.stats import LoopStats, loop_stats
 
@@ -102,6 +102,12 @@ def _audit(graph: PoseGraph, rules: LoopRules | None, *, odom_max_gap: int, veri
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     odo = graph.odometry_mask(odom_max_gap)
+    if graph.n_edges and not odo.any():
+        raise GraphError(graph.path, f"no odometry: none of its {graph.n_edges} edges joins two "
+                                     "vertices adjacent in id order, so no chain joins the poses "
+                                     "a loop closes",
+                         hint="the audit needs the odometry edges: a graph of loops alone "
+                              "cannot be tested")
     loops = np.flatnonzero(~odo)
     r2 = rules.by_statistic("pcm")
     calibration = 1.0

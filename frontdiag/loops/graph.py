@@ -13,7 +13,9 @@ Information layouts (the trap the readers exist for):
 
 Every edge is stored pointing forward (``src < dst`` in vertex order): a loop written
 later→earlier is inverted and its information carried with the adjoint. Odometry is the first
-edge joining consecutive ids; every other edge is a loop candidate.
+edge joining vertices adjacent in id order (ids need not be consecutive numbers: keyframes
+numbered by their frame, or a graph whose dropped vertices left gaps); every other edge is a
+loop candidate.
 """
 
 from __future__ import annotations
@@ -79,9 +81,11 @@ class PoseGraph:
         return lie.tangent_dim(self.dim)
 
     def odometry_mask(self, max_gap: int = 1) -> NDArray[np.bool_]:
-        """Edges treated as odometry: the first edge joining consecutive ids (and, with
-        ``max_gap`` > 1, every edge spanning at most that many ids, which is then not audited)."""
-        gap = self.ids[self.dst] - self.ids[self.src]
+        """Edges treated as odometry: the first edge joining vertices adjacent in id order (and,
+        with ``max_gap`` > 1, every edge spanning at most that many vertices in id order, which
+        is then not audited). Ids 0, 7, 15, ... (keyframes numbered by their frame) chain as
+        0, 1, 2, ... do."""
+        gap = self.dst - self.src  # positions in the sorted ids
         first = np.zeros(self.n_edges, bool)
         consecutive = np.flatnonzero(gap == 1)
         _, first_idx = np.unique(self.src[consecutive], return_index=True)
@@ -222,6 +226,21 @@ def read_graph(path: Path | str, *, sqrt_info: bool = False,
         J = np.diag([1.0, 1.0, 1.0, 0.5, 0.5, 0.5])
         info = J @ info @ J
     _check_pd(path, info, ij, lines, toro_hint=dim == 2)
+    if vid:
+        # a file that defines its vertices must define every vertex its edges join (g2o
+        # refuses to load it otherwise); a file of edges alone takes its ids from the edges
+        known = np.unique(np.asarray(vid, dtype=np.int64))
+        undefined = ~np.isin(ij, known)
+        if undefined.any():
+            e, side = (int(v) for v in np.argwhere(undefined)[0])
+            raise GraphError(path, f"line {lines[e]}: edge {ij[e, 0]}->{ij[e, 1]}: vertex "
+                                   f"{ij[e, side]} has no VERTEX line "
+                                   f"({int(undefined.any(axis=1).sum())} such edge(s))",
+                             hint="add the vertex or drop the edge")
+        dup = np.flatnonzero(np.bincount(np.searchsorted(known, vid)) > 1)
+        if dup.size:
+            notes.append(f"{dup.size} vertex id(s) defined more than once (first: "
+                         f"{known[dup[0]]}); the last definition is the starting estimate")
     ids = np.unique(np.concatenate([ij.ravel(), np.asarray(vid, dtype=np.int64)]))
     src = np.searchsorted(ids, ij[:, 0])
     dst = np.searchsorted(ids, ij[:, 1])
