@@ -272,17 +272,19 @@ def camera_key(front: Any, stream: SensorStream) -> Any:
 
 
 def camera_state(front: Any, stream: SensorStream) -> Any:
-    """A picklable hand-over of the camera frontend and its gap detector (a copy: the run
-    goes on)."""
+    """A picklable hand-over of the camera frontend, its gap detector and the last picture (a
+    copy: the run goes on)."""
     g = stream.gaps
-    return copy.deepcopy((front.get_state(), g._last, list(g._dts), stream.stats.last_t_ns))
+    return copy.deepcopy((front.get_state(), g._last, list(g._dts), stream.stats.last_t_ns,
+                          stream._picture))
 
 
 def _restore_camera(front: Any, stream: SensorStream, state: Any) -> None:
-    fstate, last, dts, last_t = state
+    fstate, last, dts, last_t, picture = state
     front.set_state(fstate)
     stream.gaps._last, stream.gaps._dts = last, list(dts)
     stream.stats.last_t_ns = last_t
+    stream._picture = picture  # a copy of it right after the hand-over is still a copy
 
 
 def prime_converter(rec: Recording, topic: str, conv: GrayConverter, opts: Any) -> None:
