@@ -129,8 +129,13 @@ def inspect_recording(path: Path | str, gap_factor: float = 3.0) -> RecordingRep
                 oddities.append(f"{info.topic}: {int(np.sum(st == 0))} zero header stamps "
                                 "(analyze uses log time for those)")
             good = st[st > 0]
-            if good.size >= 2 and np.any(np.diff(good) <= 0):
-                oddities.append(f"{info.topic}: {int(np.sum(np.diff(good) <= 0))} non-monotonic "
+            step = np.diff(good) if good.size >= 2 else np.zeros(0, np.int64)
+            if np.any(step == 0):
+                oddities.append(f"{info.topic}: {int(np.sum(step == 0))} message(s) repeat the "
+                                "header stamp of the one before them (a topic recorded twice, "
+                                "or relayed back; analyze skips those whose picture repeats too)")
+            if np.any(step < 0):
+                oddities.append(f"{info.topic}: {int(np.sum(step < 0))} non-monotonic "
                                 "header stamps")
         reports.append(rep)
     choice = None

@@ -548,6 +548,12 @@ def test_repeated_pictures_are_counted_not_analysed(tmp_path: Path) -> None:
     assert any("12 message(s) repeated the picture before them with the same stamp (first: "
                "frame 1)" in n for n in man["notes"]), man["notes"]
     assert not any("non-monotonic" in n for n in man["notes"])
+    from frontdiag.inspect import inspect_recording  # info says the same before any analysis
+
+    odd = inspect_recording(tmp_path / "twice.mcap").oddities
+    assert any("12 message(s) repeat the header stamp of the one before them" in o
+               for o in odd), odd
+    assert not any("non-monotonic" in o for o in odd)
 
     stall = analyze(_repeating(tmp_path / "stall.mcap", 12, {5: (3, 10_000_000)}))
     assert stall["frame"].tolist() == list(range(15))
