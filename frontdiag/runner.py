@@ -22,7 +22,13 @@ from typing import Any
 import numpy as np
 
 from frontdiag.errors import ConfigError, DecodeError, FrontdiagError
-from frontdiag.io.decode import decode_camera, decode_lidar, header_stamp_ns, odometry_pose
+from frontdiag.io.decode import (
+    decode_camera,
+    decode_lidar,
+    header_stamp_ns,
+    odometry_pose,
+    stamp_ns,
+)
 from frontdiag.io.images import GrayConverter, is_keyframe, is_video_topic, video_format
 from frontdiag.io.readers import Recording
 from frontdiag.io.topics import TopicChoice
@@ -170,7 +176,7 @@ class SensorStream:
         black) repeat without any fault and are not counted.
         """
         try:
-            t = header_stamp_ns(msg) or log_ns
+            t = stamp_ns(msg, log_ns)
         except AttributeError:
             t = log_ns
         prev, prev_t = self._picture

@@ -36,6 +36,15 @@ def header_stamp_ns(msg: Any) -> int:
     return int(st.sec) * 1_000_000_000 + int(st.nanosec)
 
 
+def stamp_ns(msg: Any, log_ns: int) -> int:
+    """Header stamp in integer nanoseconds, or the log time when the stamp is zero."""
+    st = msg.header.stamp
+    sec = int(getattr(st, "sec", getattr(st, "secs", 0)))
+    nsec = int(getattr(st, "nanosec", getattr(st, "nsecs", 0)))
+    t = sec * 1_000_000_000 + nsec
+    return t if t > 0 else int(log_ns)
+
+
 def odometry_pose(msg: Any) -> np.ndarray:
     """4x4 pose from nav_msgs/Odometry."""
     p = msg.pose.pose.position

@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from frontdiag.errors import DecodeError
+from frontdiag.io.decode import stamp_ns
 from frontdiag.records import LidarScan
 
 # sensor_msgs/PointField datatype -> numpy kind
@@ -49,15 +50,6 @@ RING_FIELDS: tuple[str, ...] = ("ring", "line", "channel")
 
 _ABS_WINDOW_S = 10.0
 _MIN_SPAN_S = 1e-4
-
-
-def stamp_ns(msg: Any, log_ns: int) -> int:
-    """Header stamp in integer nanoseconds, or the log time when the stamp is zero."""
-    st = msg.header.stamp
-    sec = int(getattr(st, "sec", getattr(st, "secs", 0)))
-    nsec = int(getattr(st, "nanosec", getattr(st, "nsecs", 0)))
-    t = sec * 1_000_000_000 + nsec
-    return t if t > 0 else int(log_ns)
 
 
 def _pick(names: dict[str, Any], candidates: tuple[str, ...]) -> str | None:
