@@ -37,9 +37,8 @@ from frontdiag.io.images import is_video_message
 from frontdiag.io.readers import Recording, open_recording, recording_size
 from frontdiag.io.topics import TopicChoice, choose_topics
 from frontdiag.metrics import CAMERA_COLUMNS, LIDAR_COLUMNS
-from frontdiag.records import SIZE_STATUS, Intrinsics
+from frontdiag.records import GAP_STATUS, SIZE_STATUS, Intrinsics
 from frontdiag.runner import (
-    GAP_STATUS,
     FrameSink,
     ProgressFn,
     SensorStream,

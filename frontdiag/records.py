@@ -74,6 +74,10 @@ class LidarScan:
 # keypoint states in CameraAnnotation.state
 # status of the first camera row after the image size changed: the frontend started afresh
 SIZE_STATUS = "size_changed"
+# status of the first row after a gap in the recording: the frontend started afresh
+GAP_STATUS = "after_gap"
+# rows that start a new stretch of a topic: nothing before them was compared with them
+RESTART_STATUSES = (GAP_STATUS, SIZE_STATUS)
 
 KP_UNTRACKED = 0  # no correspondence with the reference keyframe
 KP_INLIER = 1  # an essential-matrix inlier against the reference

@@ -32,12 +32,11 @@ from frontdiag.io.decode import (
 from frontdiag.io.images import GrayConverter, is_keyframe, is_video_topic, video_format
 from frontdiag.io.readers import Recording
 from frontdiag.io.topics import TopicChoice
-from frontdiag.records import CameraFrame, Intrinsics, LidarScan
+from frontdiag.records import GAP_STATUS, CameraFrame, Intrinsics, LidarScan
 from frontdiag.timing import GapDetector
 
 log = logging.getLogger(__name__)
 
-GAP_STATUS = "after_gap"  # first row after a gap: the frontend started afresh (no reference)
 
 ProgressFn = Callable[[int, int | None], None]
 FrameSink = Callable[[dict[str, Any], Any, CameraFrame | LidarScan], None]

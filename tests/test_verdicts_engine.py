@@ -87,6 +87,37 @@ def test_persistence_shorter_group_than_window() -> None:
     assert persist(b(1, 1, 0, 0, 0), 3, 5).tolist() == [False] * 5
 
 
+def test_persistence_windows_stay_inside_a_stretch_the_frontend_ran_through() -> None:
+    raw = np.isin(np.arange(20), [8, 9, 10])
+    assert persist(raw, 3, 5).sum() == 3  # 3 of 5 in one stretch
+    at_10 = np.arange(20) == 10  # the frontend restarted at row 10
+    assert not persist(raw, 3, 5, breaks=at_10).any()  # 2 of 5 before it, 1 of 5 after
+    assert (persist(raw, 3, 5, breaks=np.arange(20) == 0) == raw).all()  # row 0 starts anyway
+    # a short stretch is read like a short recording: 2 of its 2 rows
+    assert persist(raw, 3, 5, breaks=np.arange(20) == 12).tolist() == raw.tolist()
+
+
+def test_a_gap_or_a_size_change_splits_episodes_and_persistence(ruleset) -> None:
+    lows = {"h_over_e": 0.98, "parallax_med_deg": 0.04}
+    for status in ("after_gap", "size_changed"):
+        t = frames(20, {range(6, 10): lows, range(11, 15): lows}, rate_hz=15.0)  # 3 of 5 rows
+        t.loc[10:, "t_ns"] += 30_000_000_000  # 30 s without frames
+        t.loc[10, "status"] = status
+        for c in lows:
+            t.loc[10, c] = np.nan  # nothing compared across it
+        eps = evaluate(t, ruleset).episodes
+        rot = eps[eps["condition"] == "pure_rotation"]
+        assert sorted(zip(rot.start_frame, rot.end_frame, strict=True)) == [(6, 9), (11, 14)]
+        assert (rot["duration_s"] < 1.0).all()
+        # two rows before it and one after are not 3 of 5
+        t2 = frames(20, {range(8, 10): lows, 11: lows}, rate_hz=15.0)
+        t2.loc[10:, "t_ns"] += 30_000_000_000
+        t2.loc[10, "status"] = status
+        assert not evaluate(t2, ruleset).hits["FD-ROT-001"].any()
+        t2.loc[10, "status"] = "ok"  # the same rows read as one stretch
+        assert evaluate(t2, ruleset).hits["FD-ROT-001"].sum() == 3
+
+
 def test_persistence_window_spans_a_time_not_a_number_of_rows(ruleset) -> None:
     rot = next(r for r in ruleset.rules if r.id == "FD-ROT-001")
     p = rot.persistence

@@ -5,6 +5,11 @@ exposure-step check need neighbours. A frame hit survives persistence only where
 some n consecutive rows containing it hit, which removes blips without stretching episodes.
 Consecutive hits of one condition merge into an episode per topic; a gap of up to
 `max_gap_frames` clean rows (rules/run.toml, default 1) does not split an episode.
+
+Where the frontend started afresh (a gap in the recording, a change of image size: the row
+statuses in ``RESTART_STATUSES``) the topic's rows fall into stretches that were never compared
+with each other. Persistence windows and episodes stay inside one stretch: hits on both sides of
+a 30 s pause are two episodes, and two hits before it and one after are not "3 of 5".
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ import pandas as pd
 
 from frontdiag.conditions import CONDITIONS
 from frontdiag.metrics import DEFAULT_FEATURE_BUDGET, keypoint_fill
+from frontdiag.records import RESTART_STATUSES
 from frontdiag.timing import median_rate_hz
 from frontdiag.verdicts.checks import CHECKS, RunOutcome, col
 from frontdiag.verdicts.loader import Ruleset
@@ -75,14 +81,38 @@ def topic_groups(table: pd.DataFrame, sensor: str) -> Iterator[tuple[str, np.nda
         yield topic, pos[np.argsort(order_key[pos], kind="stable")]
 
 
-def persist(raw: np.ndarray, k: int, n: int) -> np.ndarray:
+def restarts(rows: pd.DataFrame) -> np.ndarray:
+    """Rows (of one topic, in time order) where the frontend started afresh: a gap in the
+    recording or a change of image size. Each begins a stretch of its own."""
+    if "status" not in rows.columns:
+        return np.zeros(len(rows), dtype=bool)
+    return rows["status"].astype(str).isin(RESTART_STATUSES).to_numpy()
+
+
+def stretches(breaks: np.ndarray | None, m: int) -> list[tuple[int, int]]:
+    """[start, end) of the stretches of m rows that ``breaks`` (True where a stretch begins)
+    cut them into; one stretch without breaks."""
+    starts = [0] if breaks is None else sorted({0, *np.flatnonzero(breaks).tolist()})
+    return [(a, b) for a, b in zip(starts, [*starts[1:], m], strict=True) if a < b]
+
+
+def persist(raw: np.ndarray, k: int, n: int, breaks: np.ndarray | None = None) -> np.ndarray:
     """Keep raw[i] only where some window of n consecutive rows containing i holds >= k hits.
 
     A topic with fewer than n rows is one window, and the same share of it must hit,
     ceil(k * rows / n): 2 of 3 rows for k = 3 of n = 5. Keeping k there would make a condition
     that fills a short recording (three panorama shots) impossible to report at all.
+
+    ``breaks`` (True where the frontend started afresh) cut the rows into stretches, and no
+    window spans two: each stretch is read as a recording of its own, the short-recording
+    share included.
     """
     m = len(raw)
+    if breaks is not None and breaks[1:].any():
+        out = np.zeros(m, dtype=bool)
+        for a, b in stretches(breaks, m):
+            out[a:b] = persist(raw[a:b], k, n)
+        return out
     if m == 0:
         return raw.copy()
     if m < n:
@@ -154,7 +184,8 @@ def _frame_hits(table: pd.DataFrame, rules: tuple[Rule, ...]) -> dict[str, np.nd
             rows = table.iloc[pos]
             raw = rule_mask(rule, rows)
             if rule.persistence is not None:
-                raw = persist(raw, *rule.persistence.window(frame_rate(rows)))
+                raw = persist(raw, *rule.persistence.window(frame_rate(rows)),
+                              breaks=restarts(rows))
             hits[rule.id][pos] = raw
     return hits
 
@@ -192,15 +223,20 @@ def peak_spec(rule: Rule) -> dict[str, str]:
     return out
 
 
-def _runs(hit: np.ndarray, max_gap: int) -> list[tuple[int, int]]:
-    """(first, last) index pairs of runs of True, bridging gaps of <= max_gap False values."""
-    idx = np.flatnonzero(hit)
-    if idx.size == 0:
-        return []
-    breaks = np.flatnonzero(np.diff(idx) > max_gap + 1)
-    starts = np.concatenate([[idx[0]], idx[breaks + 1]])
-    ends = np.concatenate([idx[breaks], [idx[-1]]])
-    return list(zip(starts.tolist(), ends.tolist(), strict=True))
+def _runs(hit: np.ndarray, max_gap: int, restart: np.ndarray | None = None
+          ) -> list[tuple[int, int]]:
+    """(first, last) index pairs of runs of True, bridging gaps of <= max_gap False values;
+    a run never spans a ``restart`` row (it begins a new one)."""
+    out: list[tuple[int, int]] = []
+    for a, b in stretches(restart, len(hit)):
+        idx = np.flatnonzero(hit[a:b]) + a
+        if idx.size == 0:
+            continue
+        cut = np.flatnonzero(np.diff(idx) > max_gap + 1)
+        starts = np.concatenate([[idx[0]], idx[cut + 1]])
+        ends = np.concatenate([idx[cut], [idx[-1]]])
+        out += zip(starts.tolist(), ends.tolist(), strict=True)
+    return out
 
 
 def _raw(table: pd.DataFrame, name: str) -> np.ndarray:
@@ -258,7 +294,7 @@ def _episodes(table: pd.DataFrame, rules: tuple[Rule, ...], hits: dict[str, np.n
         sensor = crules[0].sensor
         for topic, pos in topic_groups(table, sensor):
             hit = np.logical_or.reduce([hits[r.id][pos] for r in crules])
-            for a, b in _runs(hit, max_gap):
+            for a, b in _runs(hit, max_gap, restarts(table.iloc[pos])):
                 span = pos[a:b + 1]
                 in_ep = span[hit[a:b + 1]]
                 fired = [r for r in crules if hits[r.id][in_ep].any()]
