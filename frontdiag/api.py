@@ -120,18 +120,46 @@ def resolve_intrinsics(rec: Recording, choice: TopicChoice, opts: AnalysisOption
         return explicit
     if not choice.camera_info:
         return None
-    for raw in rec.messages([choice.camera_info]):
+    topic = choice.camera_info
+    unusable: list[str] = []  # why each message before the one used was passed over
+    refused: ConfigError | None = None
+    for i, raw in enumerate(rec.messages([topic])):
+        if i >= CAMERA_INFO_SEARCH:
+            break
         try:
             msg = rec.deserialize(raw)
         except Exception as exc:
-            notes.append(f"CameraInfo on {choice.camera_info} undecodable ({exc})")
-            return None
-        from_rec = from_camera_info(msg, choice.camera_info, notes,
-                                    rectified=is_rectified_topic(choice.camera or ""))
+            unusable.append(f"undecodable ({exc})")
+            continue
+        own: list[str] = []  # its notes, kept only if it is the one used
+        try:
+            from_rec = from_camera_info(msg, topic, own,
+                                        rectified=is_rectified_topic(choice.camera or ""))
+        except ConfigError as exc:
+            refused = refused or exc
+            unusable.append(str(exc).removeprefix(f"CameraInfo on {topic}: "))
+            continue
         if from_rec is None:
-            notes.append(f"CameraInfo on {choice.camera_info} has no K (all zeros)")
+            unusable.append("no K (all zeros)")
+            continue
+        if unusable:
+            notes.append(f"CameraInfo on {topic}: message {i + 1} used; the {len(unusable)} "
+                         f"before it were not usable (the first: {unusable[0]})")
+        notes.extend(own)
         return from_rec
+    if refused is not None:
+        raise refused  # no usable calibration and one the user must mend or override
+    if unusable:
+        shown = unusable[0] if len(unusable) == 1 else \
+            f"none of its first {len(unusable)} messages is usable (the first: {unusable[0]})"
+        notes.append(f"CameraInfo on {topic}: {shown}; no intrinsics")
     return None
+
+
+CAMERA_INFO_SEARCH = 100
+"""CameraInfo messages read for a usable calibration. A driver may publish an unset one (K all
+zeros) until its calibration file is loaded, or a message may be damaged: the first usable one
+within these is used, with a note."""
 
 
 VIDEO_KEYFRAME_SEARCH = 600

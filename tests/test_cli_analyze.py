@@ -381,7 +381,18 @@ def test_stride_past_a_tracking_rate_is_named_not_read_as_repetition(
 
 def _recording_with_info(path: Path, K_info: np.ndarray, w_info: int, h_info: int,
                          **extra: object) -> Path:
-    from recording_factory import DT, H, W
+    from recording_factory import H, W
+
+    P = np.hstack([K_info, np.zeros((3, 1))])
+    assert (W, H) == (160, 120)
+    return _recording_with_infos(path, [{"k": K_info.reshape(-1), "p": P.reshape(-1),
+                                         "width": w_info, "height": h_info, **extra}])
+
+
+def _recording_with_infos(path: Path, infos: list[dict]) -> Path:
+    """Six frames; CameraInfo message i carries ``infos[i]`` over the good one (the last
+    entry for the rest)."""
+    from recording_factory import DT, H, K, W
 
     from frontdiag.io.writer import RecordingWriter, camera_info_msg
 
@@ -391,9 +402,39 @@ def _recording_with_info(path: Path, K_info: np.ndarray, w_info: int, h_info: in
             w.write("/cam/image_raw", "sensor_msgs/msg/Image",
                     image_msg(frame(i, 0, shift=2), "mono8", t), t)
             w.write("/cam/camera_info", "sensor_msgs/msg/CameraInfo",
-                    {**camera_info_msg(K_info, w_info, h_info, t), **extra}, t)
-    assert (W, H) == (160, 120)
+                    {**camera_info_msg(K, W, H, t), **infos[min(i, len(infos) - 1)]}, t)
     return path
+
+
+def test_the_first_usable_camera_info_is_used(tmp_path: Path,
+                                              capsys: pytest.CaptureFixture[str]) -> None:
+    """A driver publishes an unset CameraInfo (K all zeros) until its calibration file is
+    loaded, or the first message is damaged: the first usable one is used, with a note."""
+    from recording_factory import K
+
+    from frontdiag.api import analyze
+
+    zeros = {"k": np.zeros(9), "p": np.zeros(12)}
+    bad_d = {"d": np.array([0.1, 0.0, 0.0])}  # plumb_bob takes 4, 5, 8, 12 or 14
+    good = analyze(_recording_with_infos(tmp_path / "good.mcap", [{}]))
+    for name, infos, first in (("late.mcap", [zeros, zeros, {}], "no K (all zeros)"),
+                               ("bad.mcap", [bad_d, {}], "distortion")):
+        t = analyze(_recording_with_infos(tmp_path / name, infos))
+        man = t.attrs["manifest"]
+        assert np.allclose(man["intrinsics"]["K"], K), name
+        used = [n for n in man["notes"] if "used; the" in n]
+        assert len(used) == 1 and f"message {len(infos)} used" in used[0] and first in used[0]
+        cols = [c for c in good.columns if not c.startswith("ms_")]
+        pd.testing.assert_frame_equal(good[cols], t[cols])
+    # none usable: unset ones leave the run without intrinsics (noted); a refused one stops it
+    unset = analyze(_recording_with_infos(tmp_path / "unset.mcap", [zeros]))
+    assert unset.attrs["manifest"]["intrinsics"] is None
+    assert (unset["status"].iloc[1:] == "no_intrinsics").all()
+    assert any("none of its first 6 messages is usable (the first: no K (all zeros))" in n
+               for n in unset.attrs["manifest"]["notes"])
+    code, _out, err = run(["analyze", str(_recording_with_infos(tmp_path / "d.mcap", [bad_d]))],
+                          capsys)
+    assert code == 2 and "distortion" in err and "Traceback" not in err
 
 
 def test_a_camera_info_for_another_image_size_is_scaled_or_flagged(tmp_path: Path) -> None:
