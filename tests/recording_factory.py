@@ -74,11 +74,12 @@ def write_recording(path: Path, fmt: str, *, n: int = 6, encoding: str = "mono8"
                     topic: str = "/cam/image_raw", with_info: bool = True, seed: int = 0,
                     extra: Callable[[RecordingWriter, int, int], None] | None = None,
                     stamps: Iterable[int] | None = None, shift: int = 1,
-                    chunk_bytes: int = 1024 * 1024) -> Path:
+                    chunk_bytes: int = 1024 * 1024, compression: str | None = None) -> Path:
     """Write ``n`` frames (and a CameraInfo per frame) to ``path`` in container ``fmt``; the
-    scene slides ``shift`` pixels per frame; ``chunk_bytes=0`` writes an unchunked MCAP."""
+    scene slides ``shift`` pixels per frame; ``chunk_bytes=0`` writes an unchunked MCAP;
+    ``compression`` as ``RecordingWriter`` takes it."""
     stamp_list = list(stamps) if stamps is not None else [T0 + i * DT for i in range(n)]
-    with RecordingWriter(path, fmt, chunk_bytes=chunk_bytes) as w:
+    with RecordingWriter(path, fmt, chunk_bytes=chunk_bytes, compression=compression) as w:
         for i, t in enumerate(stamp_list):
             log_t = T0 + i * DT
             kind, payload = encode(frame(i, seed, shift=shift), encoding)

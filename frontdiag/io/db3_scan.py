@@ -22,7 +22,7 @@ from typing import Any
 from urllib.parse import quote
 
 from frontdiag.errors import RecordingError
-from frontdiag.io.readers import RawMessage, ReadFault, TopicInfo, _Base, _short
+from frontdiag.io.readers import RawMessage, ReadFault, TopicInfo, _Base, _short, unzstd
 from frontdiag.io.writer import normalise_msgtype, typestore
 
 log = logging.getLogger(__name__)
@@ -66,7 +66,8 @@ def bag_files(folder: Path) -> list[Path]:
 
             info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
             mode = str(info.get("compression_mode", "") or "").lower()
-            if mode and mode != "none":
+            fmt = str(info.get("compression_format", "") or "").lower()
+            if mode and mode != "none" and not (mode == "message" and fmt in ("zstd", "")):
                 raise RecordingError(folder, f"compressed bag ({mode}) cannot be read past damage")
             names = [Path(p).name for p in info.get("relative_file_paths", [])]
         except RecordingError:
@@ -146,9 +147,10 @@ class ScannedDb3(_Base):
 
     backend = "db3-scan"
 
-    def __init__(self, path: Path, files: Sequence[Path]) -> None:
+    def __init__(self, path: Path, files: Sequence[Path], unzstd: bool = False) -> None:
         self.path = path
         self.fault: ReadFault | None = None
+        self._unzstd = unzstd  # each message compressed on its own (--compression-mode message)
         self._files: list[_File] = []
         try:
             for file in files:
@@ -217,7 +219,8 @@ class ScannedDb3(_Base):
                         continue
                     topic, msgtype, fmt = f.topics[int(tid)]
                     n += 1
-                    yield RawMessage(topic, msgtype, t, data, (f, fmt))
+                    yield RawMessage(topic, msgtype, t, unzstd(data) if self._unzstd else data,
+                                     (f, fmt))
             except sqlite3.DatabaseError as exc:
                 self._damaged(f, n, exc)
                 log.info("%s", self.fault.message if self.fault else exc)

@@ -307,11 +307,13 @@ class ChainedRecording(_Base):
 class McapRecording(_Base):
     backend = "mcap"
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, unzstd: bool = False) -> None:
         from mcap.reader import make_reader
 
         self.path = path
         self.fault = None
+        # each message compressed on its own (a ROS 2 bag of --compression-mode message)
+        self._unzstd = unzstd
         try:
             self._fh = open(path, "rb")  # noqa: SIM115 - closed in close()
             self._reader = make_reader(self._fh)
@@ -388,7 +390,8 @@ class McapRecording(_Base):
                     continue
                 n += 1
                 yield RawMessage(ch.topic, normalise_msgtype(schema.name if schema else ""), t,
-                                 msg.data, (schema, ch.message_encoding))
+                                 unzstd(msg.data) if self._unzstd else msg.data,
+                                 (schema, ch.message_encoding))
         except Exception as exc:
             self.fault = ReadFault(f"{self.path}: damaged after {n} messages ({_short(exc)})", n)
             log.info("%s", self.fault.message)
@@ -555,7 +558,9 @@ def _scan_db3(path: Path, files: Sequence[Path]) -> Recording | None:
             db3 = [f for f in files if f.is_file() and f.suffix != ".bag"]
         if not db3 or any(_magic(f, len(SQLITE_MAGIC)) != SQLITE_MAGIC for f in db3):
             return None
-        rec = ScannedDb3(path, db3)
+        folder = files[0] if len(files) == 1 and files[0].is_dir() else None
+        rec = ScannedDb3(path, db3, unzstd=folder is not None
+                         and compressed_messages(folder / "metadata.yaml"))
     except (RecordingError, OSError, sqlite3.Error):
         return None
     if rec.fault is None:
@@ -569,8 +574,9 @@ def _magic(path: Path, n: int) -> bytes:
         return fh.read(n)
 
 
-def _mcap(path: Path, files: Sequence[Path], container: str = "") -> Recording:
-    return McapRecording(files[0] if files else path)
+def _mcap(path: Path, files: Sequence[Path], container: str = "", unzstd: bool = False
+          ) -> Recording:
+    return McapRecording(files[0] if files else path, unzstd=unzstd)
 
 
 READERS: dict[str, Any] = {"rosbags": _rosbags, "mcap": _mcap}
@@ -581,6 +587,7 @@ class _Plan:
     backend: str
     files: list[Path] = field(default_factory=list)
     container: str = ""
+    unzstd: bool = False  # an MCAP bag whose messages are compressed one by one
 
 
 def recording_files(path: Path) -> list[Path]:
@@ -606,6 +613,9 @@ def plan(path: Path) -> _Plan:
             mcaps = sorted(path.glob("*.mcap"))
             if len(mcaps) == 1 and not list(path.glob("*.db3")):
                 # a single-file MCAP bag: the faster reader, same messages
+                if compressed_messages(path / "metadata.yaml"):
+                    return _Plan(MCAP_BACKEND, mcaps, "ros2 bag folder (mcap, zstd messages)",
+                                 unzstd=True)
                 return _Plan(MCAP_BACKEND, mcaps, "ros2 bag folder (mcap)")
             return _Plan("rosbags", [path], "ros2 bag folder")
         kinds = _folder_kinds(path)
@@ -637,6 +647,36 @@ def plan(path: Path) -> _Plan:
         return _Plan("rosbags", [path], "ros2 db3 (no metadata.yaml)")
     raise RecordingError(path, "unknown container (not MCAP, ROS 1 bag v2.0 or sqlite3)",
                          hint="frontdiag reads .bag, .db3, .mcap files and ROS 2 bag folders")
+
+
+def compressed_messages(metadata: Path) -> bool:
+    """Whether a ROS 2 bag compresses each message on its own with zstd (``ros2 bag record
+    --compression-mode message``): its storage file then holds compressed payloads, which a
+    reader of the file alone must decompress (:func:`unzstd`). A file-compressed bag
+    (``.mcap.zstd``, ``.db3.zstd``) is read by rosbags."""
+    import re
+
+    try:
+        text = metadata.read_text(errors="replace")
+    except OSError:
+        return False
+    mode = re.search(r"^\s*compression_mode:\s*['\"]?(\w*)", text, re.MULTILINE)
+    fmt = re.search(r"^\s*compression_format:\s*['\"]?(\w*)", text, re.MULTILINE)
+    if mode is None or mode.group(1).lower() != "message":
+        return False
+    return fmt is None or fmt.group(1).lower() in ("zstd", "")
+
+
+def unzstd(data: bytes | memoryview) -> bytes | memoryview:
+    """A message rosbag2 compressed on its own (one zstd frame), decompressed; a payload that
+    does not decompress is passed on as it is, so its deserialisation fails for that message
+    alone (counted as undecodable) rather than ending the topic."""
+    import zstandard
+
+    try:
+        return zstandard.ZstdDecompressor().decompressobj().decompress(bytes(data))
+    except zstandard.ZstdError:
+        return data
 
 
 _MAGIC = {b"\x89MCAP": "mcap", b"#ROSBAG V2.0": "bag", b"SQLite format 3\x00": "sqlite"}
@@ -716,6 +756,10 @@ def open_recording(path: Path | str, backend: str | None = None) -> Recording:
     name = backend or p.backend
     if name not in READERS:
         raise RecordingError(path, f"unknown reader backend {name!r}")
+    if p.unzstd and name == MCAP_BACKEND:
+        return READERS[name](path, p.files, p.container, unzstd=True)
+    if p.unzstd:  # rosbags reads the bag folder and its metadata
+        return READERS[name](path, [path], "ros2 bag folder")
     return READERS[name](path, p.files, p.container)
 
 

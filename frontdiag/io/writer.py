@@ -19,7 +19,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 from rosbags.interfaces import Nodetype
@@ -129,10 +129,20 @@ class RecordingWriter:
     ...     w.write("/cam/image_raw", "sensor_msgs/msg/Image", {...}, t_ns)
     """
 
+    COMPRESSIONS: ClassVar[dict[str, tuple[str, ...]]] = {
+        "bag": ("bz2", "lz4"), "ros2-db3": ("file", "message"), "ros2-mcap": ("file", "message")}
+    """``compression`` each format takes: a ROS 1 bag's chunks (bz2 or lz4); a ROS 2 bag with
+    zstd, the whole file or each message (``ros2 bag record --compression-mode``). MCAP files
+    compress their chunks with zstd always."""
+
     def __init__(self, path: Path | str, fmt: WriteFormat | str = "mcap",
-                 chunk_bytes: int = 1024 * 1024) -> None:
+                 chunk_bytes: int = 1024 * 1024, compression: str | None = None) -> None:
         if fmt not in WRITE_FORMATS:
             raise ValueError(f"unknown format {fmt!r}; choose one of {', '.join(WRITE_FORMATS)}")
+        if compression is not None and compression not in self.COMPRESSIONS.get(fmt, ()):
+            raise ValueError(f"format {fmt!r} takes compression "
+                             f"{' or '.join(self.COMPRESSIONS.get(fmt, ())) or 'none'}")
+        self.compression = compression
         self.path = Path(path)
         self.fmt = fmt
         self.ros_version = 1 if fmt in ("bag", "mcap-ros1") else 2
@@ -157,6 +167,9 @@ class RecordingWriter:
 
             self._writer = Ros1Writer(self.path)
             self._writer.chunk_threshold = max(self.chunk_bytes, 1)
+            if self.compression:
+                self._writer.set_compression(
+                    Ros1Writer.CompressionFormat[self.compression.upper()])
             self._writer.open()
         elif self.fmt in ("ros2-db3", "ros2-mcap"):
             from rosbags.rosbag2 import StoragePlugin
@@ -164,6 +177,11 @@ class RecordingWriter:
 
             plugin = StoragePlugin.SQLITE3 if self.fmt == "ros2-db3" else StoragePlugin.MCAP
             self._writer = Ros2Writer(self.path, version=9, storage_plugin=plugin)
+            if self.compression:
+                from rosbags.rosbag2 import CompressionFormat, CompressionMode
+
+                self._writer.set_compression(CompressionMode[self.compression.upper()],
+                                             CompressionFormat.ZSTD)
             self._writer.open()
         else:
             from mcap.writer import Writer as McapWriter
