@@ -366,8 +366,9 @@ def _stream_notes(path: Path, rec: Recording, run: StreamRun,
             notes.append(f"{stream.topic}: {st.gaps} gap(s) in the recording; the frontend "
                          f"started afresh after each (rows with status {GAP_STATUS})")
         if st.repeated_messages:
+            what = "scan" if stream is run.lid else "picture"
             notes.append(f"{stream.topic}: {st.repeated_messages} message(s) repeated the "
-                         f"picture before them with the same stamp (first: frame "
+                         f"{what} before them with the same stamp (first: frame "
                          f"{st.first_repeat}), as where a topic was recorded twice or relayed "
                          "back: not analysed")
         if st.identical_pictures:

@@ -97,6 +97,8 @@ class SensorStream:
         self.sink: FrameSink | None = None
         # the last picture decoded and its stamp (``repeats``)
         self._picture: tuple[np.ndarray | None, int] = (None, 0)
+        self._scan: LidarScan | None = None  # the last LiDAR sweep decoded (``repeats_scan``)
+        self._stamp_counted = False  # the last stamp read was counted as not advancing
         self.decoders: dict[str, Any] = {}  # per-topic decoder state (Velodyne's sensor model)
 
     def analyse(self, record: CameraFrame | LidarScan, frontend: Any, sensor: str,
@@ -157,7 +159,9 @@ class SensorStream:
             if self.owned:
                 self.stats.zero_stamps += 1
             t = log_ns
-        if self.stats.last_t_ns is not None and t <= self.stats.last_t_ns and self.owned:
+        self._stamp_counted = (self.stats.last_t_ns is not None and t <= self.stats.last_t_ns
+                               and self.owned)
+        if self._stamp_counted:
             self.stats.non_monotonic_stamps += 1
         self.stats.last_t_ns = t
         return t
@@ -198,6 +202,28 @@ class SensorStream:
             if st.first_identical is None:
                 st.first_identical = self.index
         return False
+
+    def repeats_scan(self, scan: LidarScan) -> bool:
+        """Whether this LiDAR message repeats the previous one: the same stamp and the same
+        points (the topic recorded twice, or relayed back). Counted and not analysed, as a
+        repeated picture is (:meth:`repeats`): registered, the copy would read as a perfect
+        match with no motion. Its stamp, equal to the one before, is not counted as going
+        back. Real sweeps are never equal point for point, so a later-stamped equal sweep is
+        analysed as it comes."""
+        prev = self._scan
+        self._scan = scan
+        if prev is None or prev.t_ns != scan.t_ns or prev.xyz.shape != scan.xyz.shape \
+                or not np.array_equal(prev.xyz, scan.xyz):
+            return False
+        if self.owned:
+            st = self.stats
+            st.repeated_messages += 1
+            if st.first_repeat is None:
+                st.first_repeat = self.index
+            if self._stamp_counted:  # stamp() counted the copy's stamp as not advancing
+                st.non_monotonic_stamps -= 1
+                self._stamp_counted = False
+        return True
 
     def skip(self, exc: Exception) -> None:
         if not self.owned:
@@ -507,6 +533,8 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
                     scan = decode_lidar(rec, raw, lid_stream)
                     if scan is None:
                         check_all_failed(lid_stream)
+                        continue
+                    if lid_stream.repeats_scan(scan):
                         continue
                     if choice.odometry:
                         pending.append(scan)
