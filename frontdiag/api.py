@@ -353,6 +353,8 @@ def _stream_notes(path: Path, rec: Recording, run: StreamRun,
             fault = DecodeError(stream.topic, "message",
                                 f"no message could be decoded ({st.skipped_undecodable} "
                                 f"skipped; first: {st.first_error}{and_last(st)})")
+        if st.conversion:
+            notes.append(f"{stream.topic}: {st.conversion['note']}")
         if st.non_monotonic_stamps:
             notes.append(f"{stream.topic}: {st.non_monotonic_stamps} non-monotonic header "
                          "stamps")

@@ -338,6 +338,7 @@ def _merge_counts(acc: SensorStream | None, cur: SensorStream | None) -> SensorS
         identical_pictures=a.identical_pictures + b.identical_pictures,
         first_repeat=a.first_repeat if a.first_repeat is not None else b.first_repeat,
         first_identical=a.first_identical if a.first_identical is not None
-        else b.first_identical)
+        else b.first_identical,
+        conversion=a.conversion if a.conversion is not None else b.conversion)
     acc.index = cur.index
     return acc

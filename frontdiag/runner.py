@@ -65,6 +65,9 @@ class TopicStats:
     identical_pictures: int = 0
     first_repeat: int | None = None
     first_identical: int | None = None
+    # how 16-bit pictures were mapped to 8 bits (GrayConverter.mono16): shift, window, note;
+    # None for 8-bit pictures
+    conversion: dict[str, Any] | None = None
 
 
 @dataclass(frozen=True)
@@ -554,6 +557,8 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
             out.interrupted = True
         if not out.interrupted:
             release(None)  # the scans still waiting for odometry that will not come
+        if cam_stream is not None and conv is not None:
+            cam_stream.stats.conversion = conv.mono16
         if cam_front is not None and cam_stream is not None:
             if want_end_state and out.end_state is None:
                 out.end_state = camera_state(cam_front, cam_stream)

@@ -184,6 +184,43 @@ def test_mono16_shift_is_fixed_from_first_frame() -> None:
     assert int(ga[0, 0]) == 4000 >> 4 and int(gb[0, 0]) == 2000 >> 4
 
 
+def test_mono16_on_a_pedestal_is_mapped_from_its_own_range() -> None:
+    """A thermal camera's counts: a scene spanning ~600 counts around 7300-7900. Shifted to 8
+    bits it would keep ~19 grey levels, under FAST's threshold of 20; the fixed window maps the
+    first frame's 1st-99th percentiles to 64-192, with headroom for the scene warming."""
+    from frontdiag.io.images import mono16_mapping
+
+    ts = typestore(2)
+    scene = frame(0, 0, shift=2).astype(np.uint16)  # 0-255
+    first = (7300 + 2 * scene.astype(np.int64) + 40).astype(np.uint16)
+    shift, window, note = mono16_mapping(first)
+    assert shift == 5 and window is not None
+    p1, p99 = np.percentile(first, [1, 99])
+    lo, hi = window
+    assert lo == pytest.approx(p1 - (p99 - p1) / 2, abs=1)
+    assert hi == pytest.approx(p99 + (p99 - p1) / 2, abs=1)
+    assert "pedestal" in note and f"{lo}-{hi}" in note
+    conv = GrayConverter("/thermal")
+    g1, _ = conv(build_message(ts, "sensor_msgs/msg/Image", image_msg(first, "mono16", 1)),
+                 "sensor_msgs/msg/Image")
+    q1, q99 = np.percentile(g1, [1, 99])
+    assert 60 <= q1 <= 68 and 188 <= q99 <= 196  # 128 grey levels, not (p99 - p1) >> 5
+    assert (int(first.max()) - int(first.min())) >> shift < 20
+    # the scene warms by a third of its spread: the same mapping, nothing clipped
+    warm = (first + (p99 - p1) // 3).astype(np.uint16)
+    g2, _ = conv(build_message(ts, "sensor_msgs/msg/Image", image_msg(warm, "mono16", 2)),
+                 "sensor_msgs/msg/Image")
+    assert conv.mono16_window == window
+    assert g2.max() < 255 and float(g2.mean() - g1.mean()) == pytest.approx(128 / 3, abs=2)
+    # a visible camera's 12 bits from near zero: a shift, so a gain step keeps its ratio
+    visible = (scene.astype(np.uint16) * 16 + 5).astype(np.uint16)
+    assert mono16_mapping(visible)[1] is None
+    # a narrow scene is never amplified beyond one grey level per count
+    narrow = (9000 + scene // 8).astype(np.uint16)  # 32 counts
+    lo, hi = mono16_mapping(narrow)[1] or (0, 0)
+    assert hi - lo >= 256
+
+
 def test_missing_file_is_recording_error(tmp_path: Path) -> None:
     with pytest.raises(RecordingError, match="no such file"):
         open_recording(tmp_path / "nope.mcap")

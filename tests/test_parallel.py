@@ -262,3 +262,42 @@ def test_repeated_pictures_give_the_serial_table_in_windows(tmp_path: Path, shif
     _same_table(serial.table, par.table)
     assert serial.manifest["counts"] == par.manifest["counts"]
     assert serial.manifest["notes"] == par.manifest["notes"]
+
+
+def test_thermal_counts_give_the_serial_table_in_windows(tmp_path: Path) -> None:
+    """mono16 on a pedestal (a thermal camera's counts) is mapped by a window fixed from the
+    selection's first frame: a window that starts later maps its frames the same way, and the
+    scene warming by 150 counts over the run changes the grey levels as in the serial run."""
+    import numpy as np
+    from recording_factory import DT, T0, K, frame
+
+    from frontdiag.io.writer import RecordingWriter, camera_info_msg, image_msg
+
+    path = tmp_path / "thermal.mcap"
+    with RecordingWriter(path, "mcap") as w:
+        for i in range(150):
+            t = T0 + i * DT
+            counts = (7300 + i + 3 * frame(i, 0, shift=1).astype(np.int64)).astype(np.uint16)
+            w.write("/thermal/image_raw", "sensor_msgs/msg/Image",
+                    image_msg(counts, "mono16", t), t)
+            w.write("/thermal/camera_info", "sensor_msgs/msg/CameraInfo",
+                    camera_info_msg(K, 160, 120, t), t)
+    serial = run_analysis(path, AnalysisOptions())
+    par = run_analysis(path, AnalysisOptions(jobs=2))
+    assert par.windows == 2
+    _same_table(serial.table, par.table)
+    assert serial.manifest["notes"] == par.manifest["notes"]
+    assert any("on a pedestal" in n for n in serial.manifest["notes"])
+    # read as the 8-bit frames are, not as a detection failure
+    assert not serial.table["conditions"].map(lambda c: "detection_failure" in c).any()
+    # a picture re-read for the report is mapped as the run mapped it, not from itself
+    from frontdiag.io.images import GrayConverter
+    from frontdiag.io.readers import open_recording
+    from frontdiag.report.frame_image import read_pixels
+
+    conv = GrayConverter("/thermal/image_raw")  # the run's: mapped from the first frame
+    with open_recording(path) as rec:
+        raws = list(rec.messages(["/thermal/image_raw"]))
+        seen = [conv(rec.deserialize(r), r.msgtype)[0] for r in raws]
+    got = read_pixels(serial.manifest, "/thermal/image_raw", T0 + 140 * DT)
+    assert got is not None and np.array_equal(got, seen[140])

@@ -7,7 +7,8 @@ counts a bad single message.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import cv2
@@ -96,14 +97,40 @@ SUPPORTED_ENCODINGS: tuple[str, ...] = tuple(k for k in _ENCODINGS if not k[0].i
 
 @dataclass
 class GrayConverter:
-    """Stateful for mono16: the bit shift is fixed from the first frame so that frame means
-    stay comparable across the run (a per-frame stretch would hide exposure steps); and for
-    video, whose pictures depend on the ones before them (:class:`VideoDecoder`)."""
+    """Stateful for 16-bit pictures, whose mapping to 8 bits is fixed from the first frame so
+    that frame means stay comparable across the run (a per-frame stretch would hide exposure
+    steps; :meth:`_mono16_to_8`); and for video, whose pictures depend on the ones before them
+    (:class:`VideoDecoder`)."""
 
     topic: str
     mono16_shift: int | None = None
-    encodings_seen: set[str] = field(default_factory=set)
+    mono16_window: tuple[int, int] | None = None
+    """[lo, hi) counts mapped linearly to 0-255, for pictures on a pedestal (None: a shift)."""
+    mono16_note: str | None = None
+    """How 16-bit pictures were mapped to 8 bits, for the run's notes."""
     video: VideoDecoder | None = None
+
+    @property
+    def mono16(self) -> dict[str, Any] | None:
+        """The 16-bit mapping in use (for the manifest, from which :meth:`mapped` rebuilds it),
+        or None before any 16-bit picture."""
+        if self.mono16_shift is None:
+            return None
+        return {"shift": self.mono16_shift,
+                "window": None if self.mono16_window is None else list(self.mono16_window),
+                "note": self.mono16_note}
+
+    @classmethod
+    def mapped(cls, topic: str, mono16: Mapping[str, Any] | None) -> GrayConverter:
+        """A converter that maps 16-bit pictures as a run did (its ``mono16``), so a picture
+        re-read on its own is the one the frontend saw."""
+        conv = cls(topic)
+        if mono16:
+            conv.mono16_shift = int(mono16["shift"])
+            window = mono16.get("window")
+            conv.mono16_window = None if not window else (int(window[0]), int(window[1]))
+            conv.mono16_note = mono16.get("note")
+        return conv
 
     def __call__(self, msg: Any, msgtype: str) -> tuple[np.ndarray, str]:
         msgtype = foxglove.ros_type(msgtype)
@@ -168,11 +195,54 @@ class GrayConverter:
         return img
 
     def _mono16_to_8(self, img16: np.ndarray) -> np.ndarray:
+        """8 bits from 16, by a mapping fixed from the first frame (:func:`mono16_mapping`)."""
         if self.mono16_shift is None:
-            peak = int(img16.max()) if img16.size else 0
-            bits = max(peak.bit_length(), 8)
-            self.mono16_shift = bits - 8
-        return (img16 >> self.mono16_shift).clip(0, 255).astype(np.uint8)
+            self.mono16_shift, self.mono16_window, self.mono16_note = mono16_mapping(img16)
+        if self.mono16_window is None:
+            return (img16 >> self.mono16_shift).clip(0, 255).astype(np.uint8)
+        lo, hi = self.mono16_window
+        scaled = (img16.astype(np.float32) - np.float32(lo)) * np.float32(256.0 / (hi - lo))
+        return np.clip(scaled, 0, 255).astype(np.uint8)
+
+
+PEDESTAL_RATIO = 2.0
+"""A 16-bit picture whose darkest pixels (1st percentile) sit more than this many times the
+scene's own spread (1st to 99th percentile) above zero is on a pedestal: a thermal camera's
+radiometric counts (a 14-bit Boson or Tau scene spans a few hundred counts around 7000-8000).
+Shifted to 8 bits, such a scene keeps 10-30 grey levels, under FAST's contrast threshold of 20
+on most of the image, and reads as a detection failure that the camera's own frontend, which
+rescales, never has. A picture from zero up (a visible camera's 10-16 bits) has no pedestal."""
+PEDESTAL_MARGIN = 0.5
+"""Headroom of the fixed window on each side of the first frame's spread, as a share of it:
+the scene may warm or cool, or a hot object enter, by half its initial spread before
+saturating. The first frame's 1st-99th percentiles map to 64-192 of 0-255."""
+
+
+def mono16_mapping(img16: np.ndarray) -> tuple[int, tuple[int, int] | None, str]:
+    """The 8-bit mapping of 16-bit pictures, from the first one: (shift, window, note).
+
+    Without a pedestal (:data:`PEDESTAL_RATIO`), the shift that brings the first frame's peak
+    into 8 bits: a pure scale, so that a gain or exposure change keeps its ratio. On a
+    pedestal, the window [lo, hi) of counts mapped linearly to 0-255: the first frame's 1st-99th
+    percentiles widened by :data:`PEDESTAL_MARGIN` of their spread each side, and at least 256
+    counts wide (never more than one grey level per count). Either is fixed for the run.
+    """
+    peak = int(img16.max()) if img16.size else 0
+    shift = max(peak.bit_length(), 8) - 8
+    if img16.size:
+        p1, p99 = (int(v) for v in np.percentile(img16, [1, 99]))
+    else:
+        p1 = p99 = 0
+    spread = p99 - p1
+    if spread <= 0 or p1 <= PEDESTAL_RATIO * spread:
+        return shift, None, (f"16-bit pictures shifted right by {shift} bits (fixed from the "
+                             f"first frame, peak {peak})")
+    margin = max(round(PEDESTAL_MARGIN * spread), (256 - spread + 1) // 2)
+    lo, hi = max(p1 - margin, 0), min(p99 + margin, 65536)
+    return shift, (lo, hi), (
+        f"16-bit pictures on a pedestal (first frame: 1st-99th percentile {p1}-{p99} counts, "
+        f"as a thermal camera's): counts {lo}-{hi} mapped linearly to 0-255, fixed from the "
+        f"first frame (a shift by {shift} bits would leave {spread >> shift} grey levels)")
 
 
 NO_KEYFRAME = "no keyframe yet: a video's pictures are decoded from its first keyframe on"

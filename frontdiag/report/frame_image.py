@@ -120,7 +120,9 @@ def read_pixels(manifest: Mapping[str, Any], topic: str, log_ns: int) -> np.ndar
             for raw in rec.messages([topic], log_ns, log_ns):
                 if is_video_message(rec.deserialize(raw), raw.msgtype):
                     return _video_picture(rec, topic, log_ns)
-                gray, _ = GrayConverter(topic)(rec.deserialize(raw), raw.msgtype)
+                # 16-bit pictures mapped to 8 bits as the run mapped them
+                mono16 = ((manifest.get("counts") or {}).get(topic) or {}).get("conversion")
+                gray, _ = GrayConverter.mapped(topic, mono16)(rec.deserialize(raw), raw.msgtype)
                 return gray
     except (FrontdiagError, OSError, ValueError) as exc:
         log.info("cannot re-read %s at %d from %s: %s", topic, log_ns, path, exc)
