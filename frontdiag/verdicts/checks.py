@@ -282,8 +282,10 @@ def _matching_table_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                    f"{p['ambiguous_repetitive']:.0%}: "
                    + ("features refused with two plausible partners (a twin within 50 bits): "
                       "repetition, at any frame rate" if twins else
-                      "few features have a twin; the refusals are features nothing resembles "
-                      "(viewpoint change, blur), not repetition"))
+                      "few features have a twin, so this reading adds nothing; the refusals "
+                      "are of features nothing resembles closely (viewpoint change, blur, "
+                      "compression, or a repeated object seen in perspective, whose copies "
+                      "differ with distance and angle), and the rejection lines above decide"))
     if not np.isnan(dm) and abs(dm) > p["dmean_step"]:
         out.append(f"|d_mean_intensity| {abs(dm):.1f} > {p['dmean_step']:g}: an exposure step; "
                    f"a rejection spike within {p['recovery_frames']:g} frames is the step's")
