@@ -143,8 +143,10 @@ def resolve_intrinsics(rec: Recording, choice: TopicChoice, opts: AnalysisOption
             unusable.append("no K (all zeros)")
             continue
         if unusable:
-            notes.append(f"CameraInfo on {topic}: message {i + 1} used; the {len(unusable)} "
-                         f"before it were not usable (the first: {unusable[0]})")
+            before = (f"the one before it was not usable: {unusable[0]}" if len(unusable) == 1
+                      else f"the {len(unusable)} before it were not usable (the first: "
+                           f"{unusable[0]})")
+            notes.append(f"CameraInfo on {topic}: message {i + 1} used; {before}")
         notes.extend(own)
         return from_rec
     if refused is not None:
