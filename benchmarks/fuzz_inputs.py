@@ -161,8 +161,10 @@ def main() -> int:
               f"{seconds[len(seconds) // 2]:.2f} s, max {seconds[-1]:.2f} s")
         for klass, n in sorted(by_class.items(), key=lambda kv: (kv[0] not in GOOD, kv[0])):
             print(f"  {n:5d}  {klass}{'' if klass in GOOD else '   <-- outside the contract'}")
+        width = max((len(c) for c in by_container), default=0)
         for container, counts in sorted(by_container.items()):
-            print(f"  {container:10s} " + ", ".join(f"{k}: {v}" for k, v in sorted(counts.items())))
+            print(f"  {container:{width}s} " + ", ".join(f"{k}: {v}"
+                                                       for k, v in sorted(counts.items())))
         for container, kind, rec, klass, tail in bad:
             print(f"OUTSIDE {klass}: {container} {kind}: {tail}")
             if args.keep is not None:

@@ -21,12 +21,15 @@ from pathlib import Path
 from recording_factory import write_recording
 
 # container -> (writer format, name of the valid source); folders hold their storage file
-SOURCES = {
-    "bag": ("bag", "src.bag"),
-    "ros2-db3": ("ros2-db3", "src_db3"),
-    "ros2-mcap": ("ros2-mcap", "src_mcap"),
-    "mcap": ("mcap", "src.mcap"),
-    "mcap-ros1": ("mcap-ros1", "src_ros1.mcap"),
+SOURCES: dict[str, tuple[str, str, str | None]] = {  # container: (format, name, compression)
+    "bag": ("bag", "src.bag", None),
+    "ros2-db3": ("ros2-db3", "src_db3", None),
+    "ros2-mcap": ("ros2-mcap", "src_mcap", None),
+    "mcap": ("mcap", "src.mcap", None),
+    "mcap-ros1": ("mcap-ros1", "src_ros1.mcap", None),
+    # ros2 bag record --compression-mode message: each payload a zstd frame
+    "ros2-db3-zstd": ("ros2-db3", "src_db3_zstd", "message"),
+    "ros2-mcap-zstd": ("ros2-mcap", "src_mcap_zstd", "message"),
 }
 FRAMES = 9  # camera frames in every source: three chunks of three, fast to analyse
 CHUNK_BYTES = 64 * 1024  # ~3 frames per chunk/bag chunk, so damage can fall between chunks
@@ -34,9 +37,10 @@ CHUNK_BYTES = 64 * 1024  # ~3 frames per chunk/bag chunk, so damage can fall bet
 
 def make_source(folder: Path, container: str, n: int = FRAMES,
                 chunk_bytes: int = CHUNK_BYTES) -> Path:
-    fmt, name = SOURCES[container]
+    fmt, name, compression = SOURCES[container]
     folder.mkdir(parents=True, exist_ok=True)
-    return write_recording(folder / name, fmt, n=n, chunk_bytes=chunk_bytes)
+    return write_recording(folder / name, fmt, n=n, chunk_bytes=chunk_bytes,
+                           compression=compression)
 
 
 def storage_file(rec: Path) -> Path:
