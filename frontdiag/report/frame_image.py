@@ -118,11 +118,12 @@ def read_pixels(manifest: Mapping[str, Any], topic: str, log_ns: int) -> np.ndar
     try:
         with open_recording(Path(path)) as rec:
             for raw in rec.messages([topic], log_ns, log_ns):
-                if is_video_message(rec.deserialize(raw), raw.msgtype):
+                msg = rec.deserialize(raw)
+                if is_video_message(msg, raw.msgtype):
                     return _video_picture(rec, topic, log_ns)
                 # 16-bit pictures mapped to 8 bits as the run mapped them
                 mono16 = ((manifest.get("counts") or {}).get(topic) or {}).get("conversion")
-                gray, _ = GrayConverter.mapped(topic, mono16)(rec.deserialize(raw), raw.msgtype)
+                gray, _ = GrayConverter.mapped(topic, mono16)(msg, raw.msgtype)
                 return gray
     except (FrontdiagError, OSError, ValueError) as exc:
         log.info("cannot re-read %s at %d from %s: %s", topic, log_ns, path, exc)
