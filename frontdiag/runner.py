@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from frontdiag.errors import ConfigError, DecodeError, FrontdiagError
+from frontdiag.io.camera_info import CalibrationsBySize, is_rectified_topic
 from frontdiag.io.decode import (
     decode_camera,
     decode_lidar,
@@ -321,6 +322,17 @@ def _restore_camera(front: Any, stream: SensorStream, state: Any) -> None:
     stream._picture = picture  # a copy of it right after the hand-over is still a copy
 
 
+def own_calibrations(rec: Recording, choice: TopicChoice, opts: Any,
+                     intr: Intrinsics | None) -> CalibrationsBySize | None:
+    """Where K comes from the recording's CameraInfo, its messages for other image sizes (a
+    camera reconfigured mid-recording); not where the user passed a calibration."""
+    if intr is None or not choice.camera_info or getattr(opts, "intrinsics", None) \
+            or getattr(opts, "camera_info_file", None):
+        return None
+    return CalibrationsBySize(rec.path, choice.camera_info,
+                              rectified=is_rectified_topic(choice.camera or ""))
+
+
 def prime_converter(rec: Recording, topic: str, conv: GrayConverter, opts: Any) -> None:
     """Fix a mono16 converter's shift from the first frame of the selection, as a run from the
     start does (a window that starts later must scale its frames the same way)."""
@@ -419,7 +431,8 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
     if choice.camera:
         from frontdiag.camera.frontend import CameraFrontend, CameraParams
 
-        cam_front = CameraFrontend(opts.camera_params or CameraParams(), intr)
+        cam_front = CameraFrontend(opts.camera_params or CameraParams(), intr,
+                                   calibrations=own_calibrations(rec, choice, opts, intr))
         cam_stream = SensorStream(choice.camera, opts, frames)
         conv = GrayConverter(choice.camera)
         video = is_video_topic(rec, choice.camera, choice.camera_type or "")

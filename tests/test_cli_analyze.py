@@ -518,6 +518,52 @@ def test_a_change_of_image_size_restarts_the_frontend_with_k_fitted(tmp_path: Pa
                and "K scaled by 2" in n for n in notes), notes
 
 
+def test_a_change_of_image_size_takes_the_recordings_own_calibration_for_it(
+        tmp_path: Path) -> None:
+    """The driver reconfigured to 320x240 publishes the calibration of that mode, which is not
+    the 160x120 one scaled (another principal point): from the change on, the frontend uses
+    it, and the rows equal those of a recording that starts there with it."""
+    import cv2
+    from recording_factory import DT, K
+
+    from frontdiag.api import analyze
+    from frontdiag.io.writer import RecordingWriter, camera_info_msg
+
+    K2 = K.copy()
+    K2[:2] *= 2.0
+    K2[0, 2] += 9.0  # not the 160x120 calibration scaled
+    K2[1, 2] -= 6.0
+
+    def write(path: Path, frames: range) -> Path:
+        with RecordingWriter(path, "mcap") as w:
+            for i in frames:
+                t = T0 + i * DT
+                img = frame(i, 0, shift=2)
+                info = camera_info_msg(K, 160, 120, t)
+                if i >= 8:
+                    img = cv2.resize(img, (320, 240), interpolation=cv2.INTER_LINEAR)
+                    info = camera_info_msg(K2, 320, 240, t)
+                w.write("/cam/image_raw", "sensor_msgs/msg/Image", image_msg(img, "mono8", t), t)
+                w.write("/cam/camera_info", "sensor_msgs/msg/CameraInfo", info, t)
+        return path
+
+    mixed = analyze(write(tmp_path / "mixed.mcap", range(16)))
+    tail = analyze(write(tmp_path / "tail.mcap", range(8, 16)))
+    assert np.allclose(tail.attrs["manifest"]["intrinsics"]["K"], K2)
+    cols = ["n_matches", "inliers_e", "inliers_h", "h_over_e", "parallax_med_deg", "rot_deg",
+            "pose_info_cond", "status"]
+    want = tail[cols].copy()
+    want.loc[0, "status"] = "size_changed"
+    pd.testing.assert_frame_equal(mixed[cols].iloc[8:].reset_index(drop=True), want)
+    notes = mixed.attrs["manifest"]["notes"]
+    assert any("frame 8: 160x120 -> 320x240: K from CameraInfo on /cam/camera_info message 9, "
+               "made for 320x240 images" in n for n in notes), notes
+    # with --intrinsics the user's calibration stands (its image size unknown: kept)
+    given = analyze(tmp_path / "mixed.mcap", intrinsics="100,100,79.5,59.5")
+    changes = [n for n in given.attrs["manifest"]["notes"] if "frame 8: 160x120" in n]
+    assert changes and "K kept" in changes[0] and "CameraInfo" not in changes[0], changes
+
+
 def test_a_size_a_pixel_off_is_the_same_view(tmp_path: Path) -> None:
     """Photographs of one camera, two of them saved a pixel larger (1281x721 among 1280x720,
     as in a published calibration set): the same view, matched on as before, K kept."""

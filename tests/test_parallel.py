@@ -209,10 +209,13 @@ def test_an_ignored_interrupt_stays_ignored() -> None:
         signal.signal(signal.SIGINT, saved)
 
 
-def test_a_change_of_image_size_gives_the_serial_table_in_windows(tmp_path: Path) -> None:
+@pytest.mark.parametrize("own_info", [False, True], ids=["scaled", "own-calibration"])
+def test_a_change_of_image_size_gives_the_serial_table_in_windows(tmp_path: Path,
+                                                                  own_info: bool) -> None:
     """160x120 images, 320x240 from frame 30 (before the second window's warm-up), 160x120
     again from frame 120 (inside it): each window fits K to each frame's size, as the serial
-    run does, and the size changes are counted once."""
+    run does (scaled, or the recording's own CameraInfo for 320x240 where it has one), and
+    the size changes are counted once."""
     import cv2
     from recording_factory import DT, T0, K, frame
 
@@ -223,15 +226,22 @@ def test_a_change_of_image_size_gives_the_serial_table_in_windows(tmp_path: Path
         for i in range(150):
             t = T0 + i * DT
             img = frame(i, 0, shift=1)
+            info = camera_info_msg(K, 160, 120, t)
             if 30 <= i < 120:
                 img = cv2.resize(img, (320, 240), interpolation=cv2.INTER_LINEAR)
+                if own_info:
+                    K2 = K.copy()
+                    K2[:2] *= 2.0
+                    K2[0, 2] += 9.0
+                    info = camera_info_msg(K2, 320, 240, t)
             w.write("/cam/image_raw", "sensor_msgs/msg/Image", image_msg(img, "mono8", t), t)
-            w.write("/cam/camera_info", "sensor_msgs/msg/CameraInfo",
-                    camera_info_msg(K, 160, 120, t), t)
+            w.write("/cam/camera_info", "sensor_msgs/msg/CameraInfo", info, t)
     serial = run_analysis(path, AnalysisOptions())
     par = run_analysis(path, AnalysisOptions(jobs=2))
     assert par.windows == 2
     assert serial.table["status"].eq("size_changed").sum() == 2
+    assert any(("K from CameraInfo" if own_info else "K scaled by 2") in n
+               for n in serial.manifest["notes"])
     _same_table(serial.table, par.table)
     assert serial.manifest["counts"] == par.manifest["counts"]
     assert serial.manifest["notes"] == par.manifest["notes"]

@@ -95,7 +95,7 @@ from frontdiag.camera.geometry import (
 )
 from frontdiag.camera.matching import match
 from frontdiag.camera.photometric import photometric
-from frontdiag.io.camera_info import fit_to_images
+from frontdiag.io.camera_info import CalibrationsBySize, fit_to_images
 from frontdiag.metrics import DEFAULT_FEATURE_BUDGET, keypoint_fill
 from frontdiag.records import (
     KP_INLIER,
@@ -245,9 +245,12 @@ class CameraFrontend:
 
     def __init__(self, params: CameraParams = CameraParams(),
                  intrinsics: Intrinsics | None = None,
-                 clock: Clock = time.perf_counter) -> None:
+                 clock: Clock = time.perf_counter,
+                 calibrations: CalibrationsBySize | None = None) -> None:
         self.params = params
         self.intrinsics = intrinsics
+        # the recording's own CameraInfo for another image size, where it has one
+        self._calibrations = calibrations
         self._clock = clock
         self._K = None if intrinsics is None else np.asarray(intrinsics.K, np.float64)
         # the calibration as given (for the images' first size), and fitted to each other size
@@ -667,9 +670,14 @@ class CameraFrontend:
         elif (w, h) in self._fits:
             fit, words = self._fits[(w, h)]
         else:
-            notes: list[str] = []
-            fit = fit_to_images(base, (w, h), notes)
-            words = notes[0] if notes else "K as calibrated"
+            own = self._calibrations.calibration(w, h) if self._calibrations else None
+            if own is not None:
+                fit, words = own[0], (f"K from {own[0].source} message {own[1]}, made for "
+                                      f"{w}x{h} images")
+            else:
+                notes: list[str] = []
+                fit = fit_to_images(base, (w, h), notes)
+                words = notes[0] if notes else "K as calibrated"
             self._fits[(w, h)] = fit, words
         self.intrinsics = fit
         self._K = np.asarray(fit.K, np.float64)

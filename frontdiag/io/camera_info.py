@@ -266,3 +266,46 @@ def fit_to_images(intr: Intrinsics, size: tuple[int, int] | None,
                  f"{w}x{h}: K scaled by {sx:.4g} (the same view resized)")
     return replace(intr, K=K, width=w, height=h,
                    source=f"{intr.source}, scaled to {w}x{h}")
+
+
+class CalibrationsBySize:
+    """The recording's own CameraInfo for images of a given size, looked up when the camera's
+    image size changes mid-recording (a driver reconfigured to another resolution or binning
+    publishes the calibration of its new mode).
+
+    ``calibration(w, h)`` is the first usable CameraInfo message on ``topic`` (in recording
+    order) that describes w x h images (after its region of interest and binning), or None.
+    A function of the recording and the size alone, so every window of a split run finds the
+    same one. The topic is read, from the recording opened anew, the first time each size is
+    asked for, and only then: a camera that keeps its size costs nothing.
+    """
+
+    def __init__(self, path: Path, topic: str, rectified: bool = False) -> None:
+        self.path = Path(path)
+        self.topic = topic
+        self.rectified = rectified
+        self._found: dict[tuple[int, int], tuple[Intrinsics, int] | None] = {}
+
+    def calibration(self, w: int, h: int) -> tuple[Intrinsics, int] | None:
+        """(calibration, message number from 1) of the first usable CameraInfo for w x h."""
+        if (w, h) not in self._found:
+            self._found[(w, h)] = self._scan(w, h)
+        return self._found[(w, h)]
+
+    def _scan(self, w: int, h: int) -> tuple[Intrinsics, int] | None:
+        from frontdiag.errors import FrontdiagError
+        from frontdiag.io.readers import open_recording
+
+        try:
+            with open_recording(self.path) as rec:
+                for i, raw in enumerate(rec.messages([self.topic])):
+                    try:
+                        intr = from_camera_info(rec.deserialize(raw), self.topic,
+                                                rectified=self.rectified)
+                    except Exception:  # unusable: the next one may be
+                        continue
+                    if intr is not None and (intr.width, intr.height) == (w, h):
+                        return intr, i + 1
+        except (FrontdiagError, OSError):
+            return None
+        return None
