@@ -65,7 +65,7 @@ def main() -> int:
     ap.add_argument("--first", type=int, action="append", default=None,
                     help="index of a picture whose mapping is applied to all (repeatable)")
     args = ap.parse_args()
-    pics = load(args.folder)
+    pics = load(args.folder) if args.folder.is_dir() else []
     if not pics:
         print(f"error: {args.folder}: no 16-bit single-channel TIFF or PNG", file=sys.stderr)
         return 2
