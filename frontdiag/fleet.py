@@ -75,7 +75,8 @@ def discover(inputs: Iterable[str | Path], skipped: list[Path] | None = None) ->
             raise ConfigError(f"{text}: no such file, folder or matching recording",
                               hint="pass recordings, folders of recordings or a quoted glob")
         for p in paths:
-            if p.is_file() and p.suffix not in RECORDING_SUFFIXES and not recording_kind(p):
+            if p.is_file() and p.suffix not in RECORDING_SUFFIXES \
+                    and recording_kind(p) in (None, "zstd"):
                 if skipped is not None:
                     skipped.append(p)
                 continue
@@ -89,6 +90,14 @@ def discover(inputs: Iterable[str | Path], skipped: list[Path] | None = None) ->
     if not out:
         raise ConfigError(f"no recording (.bag, .mcap, .db3, bag folder) in {', '.join(map(str, inputs))}")
     return out
+
+
+def discover_quietly(folder: Path) -> list[Path]:
+    """:func:`discover` of one folder, empty where it finds no recording."""
+    try:
+        return discover([folder])
+    except ConfigError:
+        return []
 
 
 def result_names(paths: list[Path]) -> list[str]:

@@ -74,6 +74,26 @@ def test_a_message_compressed_bag_cut_short_keeps_the_messages_before_the_damage
         np.testing.assert_array_equal(gray, frame(last))
 
 
+def test_a_file_compressed_part_without_its_bag_is_named_for_what_it_is(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A ROS 2 bag compressed per file whose metadata.yaml is missing (a killed recorder), or
+    one of its parts passed alone: exit 2 with one line that says it is zstd-compressed and
+    what to do, not "unknown container" or "several recordings need --out"."""
+    from frontdiag.cli import main
+
+    folder = write_recording(tmp_path / "bag", "ros2-db3", n=3, compression="file")
+    (folder / "metadata.yaml").unlink()
+    (part,) = folder.iterdir()
+    with pytest.raises(RecordingError, match="zstd-compressed file") as exc:
+        open_recording(part)
+    assert "zstd -d" in (exc.value.hint or "")
+    with pytest.raises(RecordingError, match=r"zstd-compressed parts .* but no metadata\.yaml"):
+        open_recording(folder)
+    assert main(["analyze", str(folder)]) == 2
+    err = capsys.readouterr().err
+    assert "zstd-compressed parts" in err and "--out" not in err and "Traceback" not in err
+
+
 def test_standalone_db3_without_metadata(tmp_path: Path) -> None:
     folder = write_recording(tmp_path / "bagdir", "ros2-db3", n=3)
     db3 = next(folder.glob("*.db3"))

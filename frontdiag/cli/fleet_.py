@@ -35,6 +35,11 @@ def run_fleet(logs: list[Path], out: Path | None, opts: Any, *, jobs: int,
     from frontdiag.output import prepare_out_dir
 
     if out is None:
+        if len(logs) == 1 and logs[0].is_dir() and not fleet.discover_quietly(logs[0]):
+            # a folder that is neither a recording nor holds one: say what it is instead
+            from frontdiag.io.readers import plan
+
+            plan(logs[0])
         raise ConfigError("several recordings need --out DIR (one result folder each)")
     if jobs > 1 and not scheduler:
         from frontdiag.parallel import FLEET_PRELOAD, prestart

@@ -620,6 +620,14 @@ def plan(path: Path) -> _Plan:
             return _Plan("rosbags", [path], "ros2 bag folder")
         kinds = _folder_kinds(path)
         bags, db3, mcaps = kinds.get("bag", []), kinds.get("sqlite", []), kinds.get("mcap", [])
+        if kinds.get("zstd") and not bags and not mcaps:
+            # ros2 bag record --compression-mode file compresses each part when it closes; a
+            # recorder that was killed leaves them without the metadata.yaml that lists them
+            parts = ", ".join(p.name for p in kinds["zstd"][:3])
+            raise RecordingError(path, f"folder holds zstd-compressed parts ({parts}) but no "
+                                       "metadata.yaml, so their order and format are unknown",
+                                 hint="decompress them (zstd -d PART) and pass the recording "
+                                      "files, or write the metadata with `ros2 bag reindex`")
         if bags:
             if split_parts(path, kinds):
                 return _Plan("rosbags", bags, "ros1 split bags")
@@ -645,6 +653,11 @@ def plan(path: Path) -> _Plan:
         return _Plan("rosbags", [path], "ros1 bag")
     if kind == "sqlite":
         return _Plan("rosbags", [path], "ros2 db3 (no metadata.yaml)")
+    if kind == "zstd":
+        raise RecordingError(path, "a zstd-compressed file (a part of a ROS 2 bag compressed per "
+                                   "file?), not a recording frontdiag reads as it is",
+                             hint="pass the bag folder with its metadata.yaml, or decompress "
+                                  "it first (zstd -d FILE)")
     raise RecordingError(path, "unknown container (not MCAP, ROS 1 bag v2.0 or sqlite3)",
                          hint="frontdiag reads .bag, .db3, .mcap files and ROS 2 bag folders")
 
@@ -679,7 +692,8 @@ def unzstd(data: bytes | memoryview) -> bytes | memoryview:
         return data
 
 
-_MAGIC = {b"\x89MCAP": "mcap", b"#ROSBAG V2.0": "bag", b"SQLite format 3\x00": "sqlite"}
+_MAGIC = {b"\x89MCAP": "mcap", b"#ROSBAG V2.0": "bag", b"SQLite format 3\x00": "sqlite",
+          b"\x28\xb5\x2f\xfd": "zstd"}
 
 
 def _folder_kinds(path: Path) -> dict[str, list[Path]]:
