@@ -31,6 +31,7 @@ from frontdiag.io.readers import (
     recording_files,
     recording_kind,
     recording_size,
+    ros2_parts,
     split_parts,
 )
 
@@ -80,7 +81,8 @@ def discover(inputs: Iterable[str | Path], skipped: list[Path] | None = None) ->
                 if skipped is not None:
                     skipped.append(p)
                 continue
-            if p.is_dir() and not (p / "metadata.yaml").exists() and not split_parts(p):
+            if p.is_dir() and not (p / "metadata.yaml").exists() and not split_parts(p) \
+                    and not ros2_parts(p):
                 found += sorted(c for c in p.iterdir()
                                 if (c.is_file() and c.suffix in RECORDING_SUFFIXES)
                                 or (c.is_dir() and (c / "metadata.yaml").exists()))

@@ -94,6 +94,52 @@ def test_a_file_compressed_part_without_its_bag_is_named_for_what_it_is(
     assert "zstd-compressed parts" in err and "--out" not in err and "Traceback" not in err
 
 
+def _split_without_metadata(tmp: Path, fmt: str, n: int, per_part: int) -> Path:
+    """The parts of one ROS 2 bag split every ``per_part`` frames, as a recorder killed
+    before it wrote metadata.yaml leaves them: NAME_0.db3, NAME_1.db3, ... (or .mcap)."""
+    from frontdiag.io.writer import RecordingWriter, image_msg
+
+    folder = tmp / "killed"
+    folder.mkdir()
+    for k, first in enumerate(range(0, n, per_part)):
+        part = tmp / f"part{k}"
+        with RecordingWriter(part, fmt) as w:
+            for i in range(first, min(first + per_part, n)):
+                t = T0 + i * DT
+                w.write("/cam/image_raw", "sensor_msgs/msg/Image",
+                        image_msg(frame(i), "mono8", t), t)
+        (storage,) = [p for p in part.iterdir() if p.name != "metadata.yaml"]
+        storage.rename(folder / f"rosbag2_2026_11_28-06_00_00_{k}{storage.suffix}")
+    return folder
+
+
+@pytest.mark.parametrize("fmt", ["ros2-db3", "ros2-mcap"])
+def test_split_ros2_parts_without_metadata_read_as_one_recording(tmp_path: Path,
+                                                                 fmt: str) -> None:
+    """A recorder killed mid-recording leaves its split parts without metadata.yaml: they are
+    read in order as one recording; a last part cut short keeps the parts before it."""
+    from frontdiag.fleet import discover
+    from frontdiag.io.readers import plan
+
+    folder = _split_without_metadata(tmp_path, fmt, 12, 5)
+    ext = "db3" if fmt == "ros2-db3" else "mcap"
+    assert [p.name.rsplit("_", 1)[1] for p in plan(folder).files] == [f"{k}.{ext}"
+                                                                       for k in range(3)]
+    assert discover([folder]) == [folder.resolve()]  # one recording, also in a fleet
+    with open_recording(folder) as rec:
+        got = list(rec.messages(["/cam/image_raw"]))
+        assert [m.log_ns for m in got] == [T0 + i * DT for i in range(12)]
+        assert rec.fault is None
+        np.testing.assert_array_equal(
+            np.asarray(rec.deserialize(got[7]).data).reshape(120, 160), frame(7))
+    last = sorted(folder.iterdir())[-1]
+    last.write_bytes(last.read_bytes()[:300])
+    with open_recording(folder) as rec:
+        got = list(rec.messages(["/cam/image_raw"]))
+        assert [m.log_ns for m in got] == [T0 + i * DT for i in range(10)]
+        assert rec.fault is not None and last.name in rec.fault.message
+
+
 def test_standalone_db3_without_metadata(tmp_path: Path) -> None:
     folder = write_recording(tmp_path / "bagdir", "ros2-db3", n=3)
     db3 = next(folder.glob("*.db3"))

@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import logging
 import sqlite3
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -498,6 +498,9 @@ and it is the only one of the two that reads ROS 1-encoded MCAP and files cut sh
 def _rosbags(path: Path, files: Sequence[Path], container: str = "") -> Recording:
     if container.startswith("ros1"):
         return _ros1(path, files)
+    if container.startswith(SPLIT_PARTS) and len(files) > 1:
+        # each part on its own, so a damaged last part keeps the parts before it
+        return ChainedRecording(path, _parts(files, lambda f: _rosbags(f, [f])))
     from frontdiag.io.db3_scan import bag_files, header_shortfall
 
     try:
@@ -576,6 +579,8 @@ def _magic(path: Path, n: int) -> bytes:
 
 def _mcap(path: Path, files: Sequence[Path], container: str = "", unzstd: bool = False
           ) -> Recording:
+    if container.startswith(SPLIT_PARTS) and len(files) > 1:
+        return ChainedRecording(path, _parts(files, lambda f: McapRecording(f, unzstd=unzstd)))
     return McapRecording(files[0] if files else path, unzstd=unzstd)
 
 
@@ -623,8 +628,8 @@ def plan(path: Path) -> _Plan:
         if kinds.get("zstd") and not bags and not mcaps:
             # ros2 bag record --compression-mode file compresses each part when it closes; a
             # recorder that was killed leaves them without the metadata.yaml that lists them
-            parts = ", ".join(p.name for p in kinds["zstd"][:3])
-            raise RecordingError(path, f"folder holds zstd-compressed parts ({parts}) but no "
+            names = ", ".join(p.name for p in kinds["zstd"][:3])
+            raise RecordingError(path, f"folder holds zstd-compressed parts ({names}) but no "
                                        "metadata.yaml, so their order and format are unknown",
                                  hint="decompress them (zstd -d PART) and pass the recording "
                                       "files, or write the metadata with `ros2 bag reindex`")
@@ -638,6 +643,10 @@ def plan(path: Path) -> _Plan:
                                       "analyses each into its own folder")
         if len(db3) == 1 and not mcaps:
             return _Plan("rosbags", db3, "ros2 db3 (no metadata.yaml)")
+        split = ros2_parts(path, kinds)
+        if split:
+            backend = "rosbags" if split[0] in db3 else MCAP_BACKEND
+            return _Plan(backend, split, f"{SPLIT_PARTS} ({len(split)} parts, no metadata.yaml)")
         if len(mcaps) == 1 and not db3:
             return plan(mcaps[0])
         raise RecordingError(path, "folder holds no metadata.yaml, ROS 1 bag, single sqlite "
@@ -735,6 +744,79 @@ def split_parts(path: Path, kinds: dict[str, list[Path]] | None = None) -> bool:
     names = {m.group(1) for m in parts if m}
     numbers = sorted(int(m.group(2)) for m in parts if m)
     return len(names) == 1 and numbers == list(range(numbers[0], numbers[0] + len(numbers)))
+
+
+class _Unreadable(_Base):
+    """A part of a split recording that cannot be opened at all (cut to its first bytes): no
+    messages, and its damage as the fault, where it falls in the parts' order."""
+
+    backend = "none"
+
+    def __init__(self, path: Path, exc: RecordingError, at_ns: int | None) -> None:
+        self.path = path
+        self.fault = ReadFault(f"{path}: damaged after 0 messages ({_problem_of(exc, path)})", 0)
+        self._start = self._end = at_ns
+
+    @property
+    def topics(self) -> list[TopicInfo]:
+        return []
+
+    def messages(self, topics: Iterable[str], start_ns: int | None = None,
+                 end_ns: int | None = None) -> Iterator[RawMessage]:
+        return iter(())
+
+    def deserialize(self, raw: RawMessage) -> Any:  # pragma: no cover - yields nothing
+        raise ValueError(f"{self.path}: nothing to deserialise")
+
+
+def _problem_of(exc: RecordingError, path: Path) -> str:
+    return str(exc).removeprefix(f"{path}: ")
+
+
+def _parts(files: Sequence[Path], open_part: Callable[[Path], Recording]) -> list[Recording]:
+    """The parts of a split recording opened in order, up to and including the first one that
+    cannot be opened (the parts after it are never reached: a chain stops at its damage)."""
+    out: list[Recording] = []
+    for f in files:
+        try:
+            out.append(open_part(f))
+        except RecordingError as exc:
+            if not out:  # nothing before it: the recording cannot be read
+                raise
+            out.append(_Unreadable(f, exc, out[-1].end_ns))
+            break
+    return out
+
+
+SPLIT_PARTS = "ros2 split parts"
+"""The container of a ROS 2 bag's parts read without their metadata.yaml."""
+
+
+def ros2_parts(path: Path, kinds: dict[str, list[Path]] | None = None) -> list[Path] | None:
+    """The parts of one ROS 2 bag split by size or time whose metadata.yaml is missing (a
+    recorder that was killed writes it only when it closes), in order; None otherwise.
+
+    ``ros2 bag record`` names its parts ``NAME_0.db3``, ``NAME_1.db3``, ... (``.mcap`` with MCAP
+    storage). So: two or more files of one kind and nothing else that is a recording, all one
+    NAME with consecutive numbers. Like split ROS 1 bags, files named so are read as one
+    recording; name them (a glob, or the files) to analyse them separately.
+    """
+    import re
+
+    kinds = _folder_kinds(path) if kinds is None else kinds
+    if len(kinds) != 1 or next(iter(kinds)) not in ("sqlite", "mcap"):
+        return None
+    (files,) = kinds.values()
+    if len(files) < 2:
+        return None
+    parts = [re.fullmatch(r"(.+)_(\d+)\.(db3|mcap)", f.name) for f in files]
+    if not all(parts):
+        return None
+    names = {m.group(1) for m in parts if m}
+    numbers = [int(m.group(2)) for m in parts if m]
+    if len(names) != 1 or sorted(numbers) != list(range(min(numbers), min(numbers) + len(files))):
+        return None
+    return [f for _, f in sorted(zip(numbers, files, strict=True))]
 
 
 def recording_kind(path: Path) -> str | None:
