@@ -158,6 +158,33 @@ def resolve_intrinsics(rec: Recording, choice: TopicChoice, opts: AnalysisOption
     return None
 
 
+def calibration_for_images(rec: Recording, choice: TopicChoice, opts: AnalysisOptions,
+                           notes: list[str]) -> Intrinsics | None:
+    """The calibration for the camera's first images: :func:`resolve_intrinsics`, and where the
+    recording's first usable CameraInfo is for another image size (a driver that publishes its
+    full-resolution calibration before binning takes effect), the first one made for the
+    images' size instead; otherwise the one found, fitted to the images (``fit_to_images``)."""
+    intr = resolve_intrinsics(rec, choice, opts, notes)
+    if intr is None or intr.width <= 0 or intr.height <= 0:
+        return intr
+    size = first_image_size(rec, choice)
+    if size is not None and (intr.width, intr.height) != size and choice.camera_info \
+            and not opts.intrinsics and not opts.camera_info_file:
+        from frontdiag.io.camera_info import CalibrationsBySize
+
+        # within the messages resolve_intrinsics reads: a resize node that passes the
+        # full-size CameraInfo on has none for the images, and its whole topic is not read
+        own = CalibrationsBySize(rec.path, choice.camera_info,
+                                 rectified=is_rectified_topic(choice.camera or ""),
+                                 limit=CAMERA_INFO_SEARCH).calibration(*size)
+        if own is not None:
+            notes.append(f"CameraInfo on {choice.camera_info}: message {own[1]} used, the "
+                         f"first made for the images' {size[0]}x{size[1]} (the first usable "
+                         f"one is for {intr.width}x{intr.height})")
+            return own[0]
+    return fit_to_images(intr, size, notes)
+
+
 CAMERA_INFO_SEARCH = 100
 """CameraInfo messages read for a usable calibration. A driver may publish an unset one (K all
 zeros) until its calibration file is loaded, or a message may be damaged: the first usable one
@@ -270,9 +297,7 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
                 raise RecordingError(path, _problem(path, rec.fault.message)) from None
             raise
         notes.extend(choice.notes)
-        intr = resolve_intrinsics(rec, choice, opts, notes) if choice.camera else None
-        if intr is not None and intr.width > 0 and intr.height > 0:
-            intr = fit_to_images(intr, first_image_size(rec, choice), notes)
+        intr = calibration_for_images(rec, choice, opts, notes) if choice.camera else None
         if choice.camera and intr is None:
             notes.append(f"no intrinsics: E, parallax, rotation and pose information are not "
                          f"computed; {HOW_TO_PASS_K}")

@@ -201,12 +201,7 @@ def _detail(msg: Any, msgtype: str) -> str:
 def _calibration_notes(rec: Any, infos: list[Any]) -> list[str]:
     """What analyze would say of the camera's CameraInfo: K unset, or made for another image
     size (scaled, or unusable for a crop); nothing when there is no camera or no CameraInfo."""
-    from frontdiag.api import (
-        AnalysisOptions,
-        first_image_size,
-        fit_to_images,
-        resolve_intrinsics,
-    )
+    from frontdiag.api import AnalysisOptions, calibration_for_images
     from frontdiag.errors import FrontdiagError
 
     try:
@@ -217,9 +212,7 @@ def _calibration_notes(rec: Any, infos: list[Any]) -> list[str]:
         return []
     notes: list[str] = []
     try:
-        intr = resolve_intrinsics(rec, choice, AnalysisOptions(), notes)
+        calibration_for_images(rec, choice, AnalysisOptions(), notes)
     except FrontdiagError as exc:  # a calibration no model can use: analyze stops on it
         return [str(exc)]
-    if intr is not None and intr.width > 0 and intr.height > 0:
-        fit_to_images(intr, first_image_size(rec, choice), notes)
     return notes

@@ -437,6 +437,30 @@ def test_the_first_usable_camera_info_is_used(tmp_path: Path,
     assert code == 2 and "distortion" in err and "Traceback" not in err
 
 
+def test_a_camera_info_for_the_images_size_beats_an_earlier_one_for_another(
+        tmp_path: Path) -> None:
+    """A driver publishes its full-resolution calibration (320x240) before binning takes
+    effect, then the binned one for its 160x120 images, which is not the first scaled: the one
+    made for the images is used, with a note, and the table is that of the binned one alone."""
+    from recording_factory import K
+
+    from frontdiag.api import analyze
+
+    full = K.copy()
+    full[:2] *= 2.0
+    full[0, 2] += 7.0  # not the binned calibration scaled
+    first = {"k": full.reshape(-1), "p": np.hstack([full, np.zeros((3, 1))]).reshape(-1),
+             "width": 320, "height": 240}
+    good = analyze(_recording_with_infos(tmp_path / "good.mcap", [{}]))
+    t = analyze(_recording_with_infos(tmp_path / "binned.mcap", [first, {}]))
+    man = t.attrs["manifest"]
+    assert np.allclose(man["intrinsics"]["K"], K)
+    assert any("message 2 used, the first made for the images' 160x120 (the first usable one "
+               "is for 320x240)" in n for n in man["notes"]), man["notes"]
+    cols = [c for c in good.columns if not c.startswith("ms_")]
+    pd.testing.assert_frame_equal(good[cols], t[cols])
+
+
 def test_a_camera_info_for_another_image_size_is_scaled_or_flagged(tmp_path: Path) -> None:
     """A resize node (or binning) that passes the full-size CameraInfo on: K describes 320x240
     while the images are 160x120. Same aspect ratio: K is scaled to the images (pixel centres:

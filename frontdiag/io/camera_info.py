@@ -280,10 +280,12 @@ class CalibrationsBySize:
     asked for, and only then: a camera that keeps its size costs nothing.
     """
 
-    def __init__(self, path: Path, topic: str, rectified: bool = False) -> None:
+    def __init__(self, path: Path, topic: str, rectified: bool = False,
+                 limit: int | None = None) -> None:
         self.path = Path(path)
         self.topic = topic
         self.rectified = rectified
+        self.limit = limit  # messages read at most (None: the whole topic)
         self._found: dict[tuple[int, int], tuple[Intrinsics, int] | None] = {}
 
     def calibration(self, w: int, h: int) -> tuple[Intrinsics, int] | None:
@@ -299,6 +301,8 @@ class CalibrationsBySize:
         try:
             with open_recording(self.path) as rec:
                 for i, raw in enumerate(rec.messages([self.topic])):
+                    if self.limit is not None and i >= self.limit:
+                        break
                     try:
                         intr = from_camera_info(rec.deserialize(raw), self.topic,
                                                 rectified=self.rectified)
