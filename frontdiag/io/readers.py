@@ -256,7 +256,7 @@ class ChainedRecording(_Base):
     def __init__(self, path: Path, parts: Sequence[Recording]) -> None:
         self.path = path
         self.parts = sorted(parts, key=lambda p: (p.start_ns is None, p.start_ns or 0))
-        self.backend = "+".join(dict.fromkeys(p.backend for p in self.parts))
+        self.backend = "+".join(dict.fromkeys(p.backend for p in self.parts if p.backend))
         self.fault = next((p.fault for p in self.parts if p.fault is not None), None)
         starts = [p.start_ns for p in self.parts if p.start_ns is not None]
         ends = [p.end_ns for p in self.parts if p.end_ns is not None]
@@ -750,7 +750,7 @@ class _Unreadable(_Base):
     """A part of a split recording that cannot be opened at all (cut to its first bytes): no
     messages, and its damage as the fault, where it falls in the parts' order."""
 
-    backend = "none"
+    backend = ""  # read by nothing
 
     def __init__(self, path: Path, exc: RecordingError, at_ns: int | None) -> None:
         self.path = path
