@@ -486,7 +486,11 @@ def test_a_camera_info_for_another_image_size_is_scaled_or_flagged(tmp_path: Pat
     crop = analyze(_recording_with_info(tmp_path / "crop.mcap", K, 160, 160))
     man = crop.attrs["manifest"]
     assert np.allclose(man["intrinsics"]["K"], K)
-    assert any("another aspect ratio" in n and "--intrinsics" in n for n in man["notes"])
+    assert any("another aspect ratio (a crop" in n and "--intrinsics" in n for n in man["notes"])
+    # one eye's calibration on a side-by-side stereo pair (160x120 holds two 80x120 eyes)
+    pair = analyze(_recording_with_info(tmp_path / "pair.mcap", K, 80, 120))
+    assert any("a stereo pair side by side" in n and "--camera-topic" in n
+               for n in pair.attrs["manifest"]["notes"])
     # `frontdiag info` says the same before anything is analysed
     from frontdiag.inspect import inspect_recording
 

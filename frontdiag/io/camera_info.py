@@ -256,10 +256,16 @@ def fit_to_images(intr: Intrinsics, size: tuple[int, int] | None,
     w, h = size
     sx, sy = w / intr.width, h / intr.height
     if abs(sx - sy) > 0.01 * max(sx, sy):
+        what = "a crop or region of interest"
+        if (w, h) in ((2 * intr.width, intr.height), (intr.width, 2 * intr.height)):
+            # ZED and other stereo cameras publish the pair side by side (or over-under) on
+            # one topic, with the CameraInfo of one eye
+            what = ("twice the calibration's width or height: a stereo pair side by side in one "
+                    "picture, which no single-camera geometry describes; analyse one eye's topic "
+                    "with --camera-topic")
         notes.append(f"{intr.source} is for {intr.width}x{intr.height} images but the camera's "
-                     f"are {w}x{h}, another aspect ratio (a crop or region of interest): K is "
-                     f"used as it is and the geometry readings are suspect; {HOW_TO_PASS_K} "
-                     "for these images")
+                     f"are {w}x{h}, another aspect ratio ({what}): K is used as it is and the "
+                     f"geometry readings are suspect; {HOW_TO_PASS_K} for these images")
         return intr
     K = scaled_K(intr.K, sx, sy)
     notes.append(f"{intr.source} is for {intr.width}x{intr.height} images, the camera's are "
