@@ -81,6 +81,7 @@ class AnalysisOptions:
     select: list[str] | None = None
     ignore: list[str] | None = None
     jobs: int = 1  # processes for one recording (time windows, frontdiag.parallel)
+    downscale: int = 1  # camera pictures shrunk by this factor before the frontend sees them
 
 
 @dataclass
@@ -167,7 +168,7 @@ def calibration_for_images(rec: Recording, choice: TopicChoice, opts: AnalysisOp
     intr = resolve_intrinsics(rec, choice, opts, notes)
     if intr is None or intr.width <= 0 or intr.height <= 0:
         return intr
-    size = first_image_size(rec, choice)
+    size = first_image_size(rec, choice, opts.downscale)
     if size is not None and (intr.width, intr.height) != size and choice.camera_info \
             and not opts.intrinsics and not opts.camera_info_file:
         from frontdiag.io.camera_info import CalibrationsBySize
@@ -176,7 +177,8 @@ def calibration_for_images(rec: Recording, choice: TopicChoice, opts: AnalysisOp
         # full-size CameraInfo on has none for the images, and its whole topic is not read
         own = CalibrationsBySize(rec.path, choice.camera_info,
                                  rectified=is_rectified_topic(choice.camera or ""),
-                                 limit=CAMERA_INFO_SEARCH).calibration(*size)
+                                 limit=CAMERA_INFO_SEARCH,
+                                 downscale=opts.downscale).calibration(*size)
         if own is not None:
             notes.append(f"CameraInfo on {choice.camera_info}: message {own[1]} used, the "
                          f"first made for the images' {size[0]}x{size[1]} (the first usable "
@@ -184,6 +186,9 @@ def calibration_for_images(rec: Recording, choice: TopicChoice, opts: AnalysisOp
             return own[0]
     return fit_to_images(intr, size, notes)
 
+
+MAX_DOWNSCALE = 8
+"""--downscale's largest factor: 4K shrunk by 8 is 480x270, about the smallest a frontend runs."""
 
 CAMERA_INFO_SEARCH = 100
 """CameraInfo messages read for a usable calibration. A driver may publish an unset one (K all
@@ -195,21 +200,22 @@ VIDEO_KEYFRAME_SEARCH = 600
 """Messages of a video topic read for its first picture (a keyframe every 20 s at 30 Hz)."""
 
 
-def first_image_size(rec: Recording, choice: TopicChoice) -> tuple[int, int] | None:
-    """(width, height) of the camera topic's first image (of a video topic, its first picture,
-    within VIDEO_KEYFRAME_SEARCH messages), or None when it cannot be read (the run then
-    reports that frame itself)."""
-    from frontdiag.io.images import GrayConverter
+def first_image_size(rec: Recording, choice: TopicChoice, downscale: int = 1
+                     ) -> tuple[int, int] | None:
+    """(width, height) of the camera topic's first image as the frontend sees it (shrunk by
+    ``downscale``; of a video topic, its first picture, within VIDEO_KEYFRAME_SEARCH messages),
+    or None when it cannot be read (the run then reports that frame itself)."""
+    from frontdiag.io.images import GrayConverter, shrunk_size
 
     assert choice.camera is not None
-    conv = GrayConverter(choice.camera)
+    conv = GrayConverter(choice.camera, downscale=downscale)
     video = False
     for i, raw in enumerate(rec.messages([choice.camera])):
         try:
             msg = rec.deserialize(raw)
             video = is_video_message(msg, raw.msgtype)
             if not video and hasattr(msg, "width") and hasattr(msg, "height"):
-                return int(msg.width), int(msg.height)
+                return shrunk_size(int(msg.width), int(msg.height), downscale)
             gray, _ = conv(msg, raw.msgtype)
             return int(gray.shape[1]), int(gray.shape[0])
         except Exception:
@@ -247,6 +253,9 @@ def check_selection(opts: AnalysisOptions) -> None:
         raise ConfigError(f"--stride {opts.stride}: must be >= 1")
     if opts.max_frames is not None and opts.max_frames < 1:
         raise ConfigError(f"--max-frames {opts.max_frames}: must be >= 1")
+    if not 1 <= opts.downscale <= MAX_DOWNSCALE:
+        raise ConfigError(f"--downscale {opts.downscale}: must be a whole factor from 1 to "
+                          f"{MAX_DOWNSCALE}")
     if opts.intrinsics is not None:
         parse_intrinsics(opts.intrinsics)
 
@@ -297,6 +306,10 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
                 raise RecordingError(path, _problem(path, rec.fault.message)) from None
             raise
         notes.extend(choice.notes)
+        if choice.camera and opts.downscale > 1:
+            notes.append(f"{choice.camera}: pictures shrunk by {opts.downscale} (--downscale; "
+                         "each pixel the mean of its block) before the frontend sees them; "
+                         "keypoints, pixel readings and K are those of the shrunk pictures")
         intr = calibration_for_images(rec, choice, opts, notes) if choice.camera else None
         if choice.camera and intr is None:
             notes.append(f"no intrinsics: E, parallax, rotation and pose information are not "
@@ -504,7 +517,8 @@ def _manifest(path: Path, rec: Recording, choice: TopicChoice, intr: Intrinsics 
         from frontdiag.lidar.frontend import LidarParams
 
         lid_params = params(opts.lidar_params or LidarParams())
-    selection = {k: getattr(opts, k) for k in ("start_s", "end_s", "max_frames", "stride")}
+    selection = {k: getattr(opts, k)
+                 for k in ("start_s", "end_s", "max_frames", "stride", "downscale")}
     rules = None if not opts.rules else {
         "dir": opts.rules_dir, "extra_dirs": opts.rules_extra,
         "overrides": opts.rules_overrides, "select": opts.select, "ignore": opts.ignore}

@@ -270,7 +270,7 @@ def iter_camera_frames(rec: Recording, topic: str, msgtype: str, opts: Any = Non
 
         opts = AnalysisOptions()
     stream = stream or SensorStream(topic, opts)
-    conv = GrayConverter(topic)
+    conv = GrayConverter(topic, downscale=getattr(opts, "downscale", 1))
     s, e = time_window(rec, opts)
     stream.window_start = s
     for raw in rec.messages([topic], None, e):
@@ -330,7 +330,8 @@ def own_calibrations(rec: Recording, choice: TopicChoice, opts: Any,
             or getattr(opts, "camera_info_file", None):
         return None
     return CalibrationsBySize(rec.path, choice.camera_info,
-                              rectified=is_rectified_topic(choice.camera or ""))
+                              rectified=is_rectified_topic(choice.camera or ""),
+                              downscale=getattr(opts, "downscale", 1))
 
 
 def prime_converter(rec: Recording, topic: str, conv: GrayConverter, opts: Any) -> None:
@@ -434,7 +435,7 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
         cam_front = CameraFrontend(opts.camera_params or CameraParams(), intr,
                                    calibrations=own_calibrations(rec, choice, opts, intr))
         cam_stream = SensorStream(choice.camera, opts, frames)
-        conv = GrayConverter(choice.camera)
+        conv = GrayConverter(choice.camera, downscale=getattr(opts, "downscale", 1))
         video = is_video_topic(rec, choice.camera, choice.camera_type or "")
         # a window that starts later scales mono16 as a run from the start does; a video's
         # decoder instead sees every message from the start (feed_video)

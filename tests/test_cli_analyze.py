@@ -592,6 +592,53 @@ def test_a_change_of_image_size_takes_the_recordings_own_calibration_for_it(
     assert changes and "K kept" in changes[0] and "CameraInfo" not in changes[0], changes
 
 
+def test_downscale_reads_the_recording_as_its_shrunk_pictures(tmp_path: Path,
+                                                              capsys: pytest.CaptureFixture[str]
+                                                              ) -> None:
+    """--downscale 2 on 320x240 pictures with their 320x240 CameraInfo gives the table of a
+    recording of the same pictures shrunk to 160x120 with the CameraInfo scaled to them; the
+    report re-reads pictures shrunk too."""
+    import cv2
+    from recording_factory import DT, K
+
+    from frontdiag.api import AnalysisOptions, analyze, run_analysis
+    from frontdiag.io.camera_info import scaled_K
+    from frontdiag.io.images import shrink
+    from frontdiag.io.writer import RecordingWriter, camera_info_msg
+    from frontdiag.report.frame_image import read_pixels
+
+    K_big = scaled_K(K, 2.0, 2.0)
+
+    def write(path: Path, factor: int) -> Path:
+        with RecordingWriter(path, "mcap") as w:
+            for i in range(16):
+                t = T0 + i * DT
+                img = cv2.resize(frame(i, 0, shift=2), (320, 240),
+                                 interpolation=cv2.INTER_LINEAR)
+                Ki, size = K_big, (320, 240)
+                if factor > 1:
+                    img, Ki, size = shrink(img, factor), scaled_K(K_big, 0.5, 0.5), (160, 120)
+                w.write("/cam/image_raw", "sensor_msgs/msg/Image", image_msg(img, "mono8", t),
+                        t)
+                w.write("/cam/camera_info", "sensor_msgs/msg/CameraInfo",
+                        camera_info_msg(Ki, *size, t), t)
+        return path
+
+    big = write(tmp_path / "big.mcap", 1)
+    res = run_analysis(big, AnalysisOptions(downscale=2))
+    small = analyze(write(tmp_path / "small.mcap", 2))
+    cols = [c for c in small.columns if not c.startswith("ms_")]
+    pd.testing.assert_frame_equal(res.table[cols], small[cols])
+    assert np.allclose(res.manifest["intrinsics"]["K"], small.attrs["manifest"]["intrinsics"]["K"])
+    assert res.manifest["selection"]["downscale"] == 2
+    assert any("shrunk by 2" in n for n in res.manifest["notes"])
+    got = read_pixels(res.manifest, "/cam/image_raw", T0 + 5 * DT)
+    assert got is not None and got.shape == (120, 160)
+    # out of range: one line, exit 2
+    code, _out, err = run(["analyze", str(big), "--downscale", "0"], capsys)
+    assert code == 2 and "--downscale 0" in err
+
+
 def test_a_size_a_pixel_off_is_the_same_view(tmp_path: Path) -> None:
     """Photographs of one camera, two of them saved a pixel larger (1281x721 among 1280x720,
     as in a published calibration set): the same view, matched on as before, K kept."""

@@ -33,6 +33,15 @@ def test_windows_cover_every_frame_once() -> None:
     assert len(plan_windows(100, 4, 60)) == 1  # too short to pay for a warm-up
 
 
+def test_downscaled_windows_give_the_serial_table(tmp_path: Path) -> None:
+    path = write_recording(tmp_path / "run.mcap", "mcap", n=150, shift=2)
+    serial = run_analysis(path, AnalysisOptions(downscale=2))
+    par = run_analysis(path, AnalysisOptions(downscale=2, jobs=2))
+    assert par.windows == 2 and serial.table["width"].eq(80).all()
+    _same_table(serial.table, par.table)
+    assert serial.manifest["notes"] == par.manifest["notes"]
+
+
 @pytest.mark.parametrize("shift", [1, 0], ids=["moving", "still"])
 def test_parallel_table_equals_serial(tmp_path: Path, shift: int) -> None:
     # still: keyframes every kf_max_frames at whatever phase the run started, so a window's

@@ -670,10 +670,13 @@ class CameraFrontend:
         elif (w, h) in self._fits:
             fit, words = self._fits[(w, h)]
         else:
-            own = self._calibrations.calibration(w, h) if self._calibrations else None
-            if own is not None:
-                fit, words = own[0], (f"K from {own[0].source} message {own[1]}, made for "
-                                      f"{w}x{h} images")
+            cal = self._calibrations
+            own = cal.calibration(w, h) if cal is not None else None
+            if cal is not None and own is not None:
+                made = f"{w}x{h} images" if cal.downscale == 1 else \
+                    f"these images before --downscale {cal.downscale}"
+                fit, words = own[0], (f"K from CameraInfo on {cal.topic} message {own[1]}, "
+                                      f"made for {made}")
             else:
                 notes: list[str] = []
                 fit = fit_to_images(base, (w, h), notes)

@@ -37,6 +37,8 @@ Examples:
 
   frontdiag analyze run.mcap --ratio 1.0 --no-mutual --ransac-iters 40  # your frontend's budget
 
+  frontdiag analyze 4k_run.mcap --downscale 2   # your frontend runs on half-size pictures
+
   frontdiag analyze long_run.mcap --jobs 2 --out results/   # both cores on one recording
 
   frontdiag analyze logs/ 'more/*.mcap' --out fleet/ --jobs 2   # a fleet: one folder each
@@ -91,6 +93,10 @@ def analyze_cmd(
     max_frames: int | None = typer.Option(None, "--max-frames",
                                           help="Analyse at most N frames per sensor."),
     stride: int = typer.Option(1, "--stride", help="Analyse every N-th message."),
+    downscale: int = typer.Option(1, "--downscale", metavar="N",
+                                  help="Shrink camera pictures by N (1-8) before the frontend, "
+                                       "as a frontend that runs on reduced images sees them; K "
+                                       "follows."),
     config: Path | None = typer.Option(None, "--config", metavar="FILE.toml",
                                        help="Frontend parameters (\\[camera] and \\[lidar] tables; see "
                                             "docs/config.md); the options below win over it."),
@@ -209,7 +215,7 @@ def analyze_cmd(
         rules_dir=str(rules_dir) if rules_dir and no_default_rules else None,
         rules_extra=[str(rules_dir)] if rules_dir and not no_default_rules else None,
         rules_overrides=str(overrides) if overrides else None, select=_split(select),
-        ignore=_split(ignore), jobs=jobs)
+        ignore=_split(ignore), jobs=jobs, downscale=downscale)
     if fleet:
         from frontdiag.cli.fleet_ import run_fleet
 

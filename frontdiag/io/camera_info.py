@@ -287,21 +287,27 @@ class CalibrationsBySize:
     """
 
     def __init__(self, path: Path, topic: str, rectified: bool = False,
-                 limit: int | None = None) -> None:
+                 limit: int | None = None, downscale: int = 1) -> None:
         self.path = Path(path)
         self.topic = topic
         self.rectified = rectified
         self.limit = limit  # messages read at most (None: the whole topic)
+        self.downscale = downscale  # the pictures are shrunk by it (analyze --downscale)
         self._found: dict[tuple[int, int], tuple[Intrinsics, int] | None] = {}
 
     def calibration(self, w: int, h: int) -> tuple[Intrinsics, int] | None:
-        """(calibration, message number from 1) of the first usable CameraInfo for w x h."""
+        """(calibration, message number from 1) of the first usable CameraInfo for w x h
+        pictures: made for them, or for the images they were shrunk from (then scaled)."""
         if (w, h) not in self._found:
-            self._found[(w, h)] = self._scan(w, h)
+            found = self._scan(w, h)
+            if found is not None and (found[0].width, found[0].height) != (w, h):
+                found = (fit_to_images(found[0], (w, h), []), found[1])
+            self._found[(w, h)] = found
         return self._found[(w, h)]
 
     def _scan(self, w: int, h: int) -> tuple[Intrinsics, int] | None:
         from frontdiag.errors import FrontdiagError
+        from frontdiag.io.images import shrunk_size
         from frontdiag.io.readers import open_recording
 
         try:
@@ -314,7 +320,8 @@ class CalibrationsBySize:
                                                 rectified=self.rectified)
                     except Exception:  # unusable: the next one may be
                         continue
-                    if intr is not None and (intr.width, intr.height) == (w, h):
+                    if intr is not None and shrunk_size(intr.width, intr.height,
+                                                        self.downscale) == (w, h):
                         return intr, i + 1
         except (FrontdiagError, OSError):
             return None

@@ -109,6 +109,8 @@ class GrayConverter:
     mono16_note: str | None = None
     """How 16-bit pictures were mapped to 8 bits, for the run's notes."""
     video: VideoDecoder | None = None
+    downscale: int = 1
+    """Pictures are shrunk by this integer factor (``analyze --downscale``), box-averaged."""
 
     @property
     def mono16(self) -> dict[str, Any] | None:
@@ -121,10 +123,11 @@ class GrayConverter:
                 "note": self.mono16_note}
 
     @classmethod
-    def mapped(cls, topic: str, mono16: Mapping[str, Any] | None) -> GrayConverter:
-        """A converter that maps 16-bit pictures as a run did (its ``mono16``), so a picture
-        re-read on its own is the one the frontend saw."""
-        conv = cls(topic)
+    def mapped(cls, topic: str, mono16: Mapping[str, Any] | None,
+               downscale: int = 1) -> GrayConverter:
+        """A converter that maps 16-bit pictures as a run did (its ``mono16``) and shrinks them
+        as it did, so a picture re-read on its own is the one the frontend saw."""
+        conv = cls(topic, downscale=downscale)
         if mono16:
             conv.mono16_shift = int(mono16["shift"])
             window = mono16.get("window")
@@ -133,6 +136,12 @@ class GrayConverter:
         return conv
 
     def __call__(self, msg: Any, msgtype: str) -> tuple[np.ndarray, str]:
+        gray, encoding = self._grey(msg, msgtype)
+        if self.downscale > 1:
+            gray = shrink(gray, self.downscale)
+        return gray, encoding
+
+    def _grey(self, msg: Any, msgtype: str) -> tuple[np.ndarray, str]:
         msgtype = foxglove.ros_type(msgtype)
         if is_video_message(msg, msgtype):
             fmt = video_format(msg, msgtype)
@@ -203,6 +212,19 @@ class GrayConverter:
         lo, hi = self.mono16_window
         scaled = (img16.astype(np.float32) - np.float32(lo)) * np.float32(256.0 / (hi - lo))
         return np.clip(scaled, 0, 255).astype(np.uint8)
+
+
+def shrunk_size(w: int, h: int, factor: int) -> tuple[int, int]:
+    """The size of a w x h picture shrunk by ``factor`` (:func:`shrink`)."""
+    return max(w // factor, 1), max(h // factor, 1)
+
+
+def shrink(gray: np.ndarray, factor: int) -> np.ndarray:
+    """A picture shrunk by an integer factor, each pixel the mean of the factor x factor block
+    it covers (``cv2.INTER_AREA``), as a frontend that runs on a reduced image sees it."""
+    h, w = gray.shape[:2]
+    size = shrunk_size(w, h, factor)
+    return np.ascontiguousarray(cv2.resize(gray, size, interpolation=cv2.INTER_AREA))
 
 
 PEDESTAL_RATIO = 2.0

@@ -117,13 +117,15 @@ def read_pixels(manifest: Mapping[str, Any], topic: str, log_ns: int) -> np.ndar
         return None
     try:
         with open_recording(Path(path)) as rec:
+            # shrunk (--downscale) as the run shrank them
+            downscale = int((manifest.get("selection") or {}).get("downscale") or 1)
             for raw in rec.messages([topic], log_ns, log_ns):
                 msg = rec.deserialize(raw)
                 if is_video_message(msg, raw.msgtype):
-                    return _video_picture(rec, topic, log_ns)
+                    return _video_picture(rec, topic, log_ns, downscale)
                 # 16-bit pictures mapped to 8 bits as the run mapped them
                 mono16 = ((manifest.get("counts") or {}).get(topic) or {}).get("conversion")
-                gray, _ = GrayConverter.mapped(topic, mono16)(msg, raw.msgtype)
+                gray, _ = GrayConverter.mapped(topic, mono16, downscale)(msg, raw.msgtype)
                 return gray
     except (FrontdiagError, OSError, ValueError) as exc:
         log.info("cannot re-read %s at %d from %s: %s", topic, log_ns, path, exc)
@@ -135,14 +137,14 @@ VIDEO_LOOKBACK_S = (2.0, 10.0, 60.0, None)
 (None: from the start of the recording)."""
 
 
-def _video_picture(rec: Any, topic: str, log_ns: int) -> np.ndarray | None:
+def _video_picture(rec: Any, topic: str, log_ns: int, downscale: int = 1) -> np.ndarray | None:
     """The picture of a video topic logged at ``log_ns``: decoded from a keyframe before it,
     found by starting further back each time none was met."""
     from frontdiag.io.images import GrayConverter
 
     for back in VIDEO_LOOKBACK_S:
         start = None if back is None else max(log_ns - int(back * 1e9), 0)
-        conv = GrayConverter(topic)
+        conv = GrayConverter(topic, downscale=downscale)
         gray = None
         for raw in rec.messages([topic], start, log_ns):
             try:
