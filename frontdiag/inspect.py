@@ -44,10 +44,14 @@ class RecordingReport:
     oddities: list[str] = field(default_factory=list)
     fault: str | None = None
     """Damage met while reading (the counts cover what was readable before it)."""
+    container: str = ""
+    """What the recording was read as ("ros2 bag folder (mcap, zstd messages)", "ros1 split
+    bags", "ros2 split parts (3 parts, no metadata.yaml)", ...)."""
 
     def to_dict(self) -> dict[str, Any]:
         return {
-            "path": str(self.path), "backend": self.backend, "duration_s": self.duration_s,
+            "path": str(self.path), "container": self.container, "backend": self.backend,
+            "duration_s": self.duration_s,
             "start_ns": self.start_ns, "end_ns": self.end_ns,
             "topics": [t.__dict__ for t in self.topics],
             "analyze_would_use": None if self.choice is None else {
@@ -148,8 +152,11 @@ def inspect_recording(path: Path | str, gap_factor: float = 3.0) -> RecordingRep
         choice_error = str(exc)
     oddities.extend(calibration)
     duration = (end - start) / 1e9 if start is not None and end is not None else None
+    from frontdiag.io.readers import plan
+
     return RecordingReport(path, backend, duration, start, end, reports, choice, choice_error,
-                           oddities, None if fault is None else fault.message)
+                           oddities, None if fault is None else fault.message,
+                           container=plan(path).container)
 
 
 def _velodyne_detail(topic: str, msg: Any) -> str:

@@ -119,6 +119,9 @@ class InfoDoc(_Doc):
 
     schema_: str = Field(alias="schema", default=schemas.INFO_SCHEMA)
     path: str
+    container: str = Field(default="", description="what the recording was read as: a ROS 1 "
+                           "bag, split bags, a ROS 2 bag folder (and its compression), split "
+                           "parts without metadata.yaml, MCAP, ...")
     backend: str
     duration_s: float | None
     start_ns: int | None

@@ -43,8 +43,12 @@ def test_compressed_recordings_read_as_the_plain_one(tmp_path: Path, fmt: str,
     ``ros2 bag record --compression-mode``) give the messages of the uncompressed recording.
     A message-compressed MCAP bag holds compressed payloads in an MCAP file, so it is read
     through the bag's metadata, not as a plain MCAP file."""
+    from frontdiag.inspect import inspect_recording
+
     plain = write_recording(tmp_path / "plain", fmt, n=4)
     packed = write_recording(tmp_path / "packed", fmt, n=4, compression=compression)
+    if (fmt, compression) == ("ros2-mcap", "message"):
+        assert "zstd messages" in inspect_recording(packed).container
     topics = ["/cam/image_raw", "/cam/camera_info"]
     with open_recording(plain) as a, open_recording(packed) as b:
         assert b.fault is None
@@ -119,9 +123,12 @@ def test_split_ros2_parts_without_metadata_read_as_one_recording(tmp_path: Path,
     """A recorder killed mid-recording leaves its split parts without metadata.yaml: they are
     read in order as one recording; a last part cut short keeps the parts before it."""
     from frontdiag.fleet import discover
+    from frontdiag.inspect import inspect_recording
     from frontdiag.io.readers import plan
 
     folder = _split_without_metadata(tmp_path, fmt, 12, 5)
+    # info says what it read it as (and, when the last part is cut below, where the damage is)
+    assert inspect_recording(folder).container == "ros2 split parts (3 parts, no metadata.yaml)"
     ext = "db3" if fmt == "ros2-db3" else "mcap"
     assert [p.name.rsplit("_", 1)[1] for p in plan(folder).files] == [f"{k}.{ext}"
                                                                        for k in range(3)]

@@ -50,7 +50,9 @@ def info_cmd(
         return _damage_exit(rep)
     con = make_console()
     dur = f"{rep.duration_s:.2f} s" if rep.duration_s is not None else "unknown"
-    con.print(f"[bold]{escape(str(rep.path))}[/]  [dim]{rep.backend} reader[/]  duration {dur}")
+    read = f"{escape(rep.container)}, {rep.backend} reader" if rep.container else \
+        f"{rep.backend} reader"
+    con.print(f"[bold]{escape(str(rep.path))}[/]  [dim]{read}[/]  duration {dur}")
     t = Table(show_edge=False, header_style="bold")
     for col, just in (("topic", "left"), ("type", "left"), ("messages", "right"),
                       ("rate (Hz)", "right"), ("max gap (s)", "right"), ("detail", "left")):
