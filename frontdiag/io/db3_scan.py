@@ -22,7 +22,16 @@ from typing import Any
 from urllib.parse import quote
 
 from frontdiag.errors import RecordingError
-from frontdiag.io.readers import RawMessage, ReadFault, TopicInfo, _Base, _short, unzstd
+from frontdiag.io.readers import (
+    RawMessage,
+    ReadFault,
+    TopicInfo,
+    _Base,
+    _short,
+    bag_compression,
+    compressed_messages,
+    unzstd,
+)
 from frontdiag.io.writer import normalise_msgtype, typestore
 
 log = logging.getLogger(__name__)
@@ -65,9 +74,8 @@ def bag_files(folder: Path) -> list[Path]:
             import yaml
 
             info = yaml.safe_load(meta.read_text())["rosbag2_bagfile_information"]
-            mode = str(info.get("compression_mode", "") or "").lower()
-            fmt = str(info.get("compression_format", "") or "").lower()
-            if mode and mode != "none" and not (mode == "message" and fmt in ("zstd", "")):
+            mode, _fmt = bag_compression(meta)
+            if mode and not compressed_messages(meta):
                 raise RecordingError(folder, f"compressed bag ({mode}) cannot be read past damage")
             names = [Path(p).name for p in info.get("relative_file_paths", [])]
         except RecordingError:

@@ -671,22 +671,27 @@ def plan(path: Path) -> _Plan:
                          hint="frontdiag reads .bag, .db3, .mcap files and ROS 2 bag folders")
 
 
+def bag_compression(metadata: Path) -> tuple[str, str]:
+    """(compression mode, compression format) of a ROS 2 bag, lower-case, from its
+    metadata.yaml; empty where unset ("none" reads as unset) or the file is unreadable."""
+    import yaml
+
+    try:
+        info = yaml.safe_load(metadata.read_text(errors="replace"))["rosbag2_bagfile_information"]
+        mode = str(info.get("compression_mode", "") or "").lower()
+        fmt = str(info.get("compression_format", "") or "").lower()
+    except Exception:  # a damaged or foreign metadata.yaml: read as uncompressed
+        return "", ""
+    return ("" if mode == "none" else mode), fmt
+
+
 def compressed_messages(metadata: Path) -> bool:
     """Whether a ROS 2 bag compresses each message on its own with zstd (``ros2 bag record
     --compression-mode message``): its storage file then holds compressed payloads, which a
     reader of the file alone must decompress (:func:`unzstd`). A file-compressed bag
     (``.mcap.zstd``, ``.db3.zstd``) is read by rosbags."""
-    import re
-
-    try:
-        text = metadata.read_text(errors="replace")
-    except OSError:
-        return False
-    mode = re.search(r"^\s*compression_mode:\s*['\"]?(\w*)", text, re.MULTILINE)
-    fmt = re.search(r"^\s*compression_format:\s*['\"]?(\w*)", text, re.MULTILINE)
-    if mode is None or mode.group(1).lower() != "message":
-        return False
-    return fmt is None or fmt.group(1).lower() in ("zstd", "")
+    mode, fmt = bag_compression(metadata)
+    return mode == "message" and fmt in ("zstd", "")
 
 
 def unzstd(data: bytes | memoryview) -> bytes | memoryview:
@@ -695,10 +700,16 @@ def unzstd(data: bytes | memoryview) -> bytes | memoryview:
     alone (counted as undecodable) rather than ending the topic."""
     import zstandard
 
+    global _ZSTD
+    if _ZSTD is None:
+        _ZSTD = zstandard.ZstdDecompressor()
     try:
-        return zstandard.ZstdDecompressor().decompressobj().decompress(bytes(data))
+        return _ZSTD.decompressobj().decompress(bytes(data))
     except zstandard.ZstdError:
         return data
+
+
+_ZSTD: Any = None  # one decompressor for every message (unzstd)
 
 
 _MAGIC = {b"\x89MCAP": "mcap", b"#ROSBAG V2.0": "bag", b"SQLite format 3\x00": "sqlite",
