@@ -30,6 +30,13 @@ from frontdiag.loops.chain import Chain, build_chain
 from frontdiag.loops.graph import GraphError, PoseGraph
 from frontdiag.loops.rules import LoopRules, load_loop_rules
 from frontdiag.loops.stats import LoopStats, loop_stats
+from frontdiag.loops.stiffness import (
+    AXES,
+    Overconfident,
+    cap_information,
+    describe,
+    find_overconfident,
+)
 
 log = logging.getLogger(__name__)
 
@@ -53,12 +60,38 @@ class LoopAudit:
     map_poses: np.ndarray | None = None
     calibration: float = 1.0
     """Factor applied to every covariance of the file (1: as read)."""
+    overconfident: Overconfident | None = None
+    """FD-LOP-005's edges (odometry and loops), None without that rule."""
+    capped: bool = False
+    """Whether ``graph`` holds their information capped (the file's otherwise)."""
 
     def kept_edges(self) -> np.ndarray:
         """Edges (odometry and loops) of the graph without the refuted loops."""
         keep = self.odometry.copy()
         keep[self.table["edge"].to_numpy()[self.table["verdict"].to_numpy() == "ok"]] = True
         return keep
+
+
+def _overconfident_rows(result: LoopAudit, top: int) -> dict[str, Any]:
+    """FD-LOP-005's edges for the summary: counts, the line, and the stiffest ``top``."""
+    over = result.overconfident
+    if over is None:
+        return {"checked": False}
+    g = result.graph
+    names = AXES[g.dim]
+    rows = []
+    for e, a, s, r in zip(over.edges[:top].tolist(), over.axis[:top].tolist(),
+                          over.sigma[:top].tolist(), over.ratio[:top].tolist(), strict=True):
+        ends = [int(g.ids[g.src[e]]), int(g.ids[g.dst[e]])]
+        if g.flipped[e]:  # as the file writes it
+            ends.reverse()
+        rows.append({"edge_line": int(g.line[e]), "i": ends[0], "j": ends[1],
+                     "odometry": bool(result.odometry[e]), "axis": names[int(a)],
+                     "sigma": float(s), "over_median": float(r)})
+    return {"checked": True, "max_over_median": over.max_over_median,
+            "odometry": int(result.odometry[over.edges].sum()),
+            "loops": int((~result.odometry[over.edges]).sum()), "capped": result.capped,
+            "stiffest": rows}
 
 
 def _calibration_note(t: pd.DataFrame, k: int) -> str | None:
@@ -110,6 +143,12 @@ def _audit(graph: PoseGraph, rules: LoopRules | None, *, odom_max_gap: int, veri
                               "cannot be tested")
     loops = np.flatnonzero(~odo)
     r2 = rules.by_statistic("pcm")
+    r5 = rules.optional("stiffness")
+    over = find_overconfident(graph, float(r5.param("max_over_median"))) if r5 else None
+    capped = bool(over is not None and len(over) and r5 is not None and r5.param("cap"))
+    file_graph = graph
+    if capped and over is not None:
+        graph = cap_information(graph, over)
     calibration = 1.0
     if calibrate:
         graph, calibration = calibrate_information(graph, odo, loops, int(r2.param("window")))
@@ -179,6 +218,10 @@ def _audit(graph: PoseGraph, rules: LoopRules | None, *, odom_max_gap: int, veri
                        n_pairs=int(pairs.shape[0]), n_conflicts=int(conflict.shape[0]),
                        timings=timings)
     result.calibration = calibration
+    result.overconfident = over
+    result.capped = capped
+    if over is not None and len(over):
+        result.notes.append(_overconfident_note(file_graph, over, odo, capped))
     if calibration != 1.0:
         result.notes.append(f"covariances scaled by {calibration:.3g} (the median χ² of the "
                             "pairwise cycles over its expected value; without --calibrate the "
@@ -192,6 +235,7 @@ def _audit(graph: PoseGraph, rules: LoopRules | None, *, odom_max_gap: int, veri
         verify_against_map(result)
         timings["map_s"] = time.perf_counter() - t2
     _untestable(result)
+    _overconfident_loops(result, file_graph)
     note = _calibration_note(result.table, k)
     if note:
         result.notes.append(note)
@@ -245,6 +289,45 @@ def _untestable(result: LoopAudit) -> None:
     t.loc[hit, "reason"] = "no odometry chain joins its poses and no other loop confirms it"
 
 
+def _overconfident_note(graph: PoseGraph, over: Overconfident, odo: np.ndarray,
+                        capped: bool) -> str:
+    n_odo = int(odo[over.edges].sum())
+    n_loop = len(over) - n_odo
+    head = (f"FD-LOP-005: {n_odo} odometry edge(s) and {n_loop} loop(s) claim information above "
+            f"{over.max_over_median:g}x the graph's median on an axis; the stiffest, "
+            f"{describe(graph, over, 0)}. No sensor measures that well, and Levenberg–Marquardt "
+            "stalls on such an edge (it may not take a single step)")
+    if capped:
+        return (f"{head}. The audit tested the loops with these entries lowered to that line "
+                "(still far stiffer than the graph's typical edge); floor the variances where "
+                "the graph is written")
+    return f"{head}. They were not capped (FD-LOP-005 cap = false)"
+
+
+def _overconfident_loops(result: LoopAudit, graph: PoseGraph) -> None:
+    """FD-LOP-005 on the loop table: a loop that claims an impossible certainty is said to, and
+    one that passed every test becomes a warning (its information would dominate the map)."""
+    over = result.overconfident
+    if over is None or not len(over):
+        return
+    r5 = result.rules.by_statistic("stiffness")
+    t = result.table
+    row_of = {int(e): i for i, e in enumerate(t["edge"].to_numpy())}
+    verdict = t["verdict"].to_numpy().astype(object)
+    rule = t["rule"].to_numpy().astype(object)
+    reason = t["reason"].to_numpy().astype(object)
+    for pos, e in enumerate(over.edges.tolist()):
+        i = row_of.get(int(e))
+        if i is None:  # an odometry edge: in the note only
+            continue
+        said = f"overconfident information ({describe(graph, over, pos)})"
+        if verdict[i] == "ok":
+            verdict[i], rule[i], reason[i] = r5.severity, r5.id, said
+        else:
+            reason[i] = f"{reason[i]}; also {said}" if reason[i] else said
+    _finish(result, verdict, rule, reason)
+
+
 def summary(result: LoopAudit, top: int = 10) -> dict[str, Any]:
     """Counts, the rules that fired, and the refuted loops ranked by the displacement they cause."""
     t = result.table
@@ -265,6 +348,7 @@ def summary(result: LoopAudit, top: int = 10) -> dict[str, Any]:
         "pairs_tested": result.n_pairs,
         "pair_conflicts": result.n_conflicts,
         "link_stiffness_m2": result.stats.link_stiffness,
+        "overconfident_edges": _overconfident_rows(result, top),
         "timings_s": result.timings,
         "notes": result.graph.notes + result.notes,
         "worst": flagged.head(top)[cols].to_dict(orient="records"),

@@ -17,7 +17,7 @@ from frontdiag.errors import RuleError
 from frontdiag.verdicts.loader import default_rules_dir
 from frontdiag.verdicts.model import Param, RuleText, Severity
 
-Statistic = Literal["chi2", "pcm", "map", "untestable"]
+Statistic = Literal["chi2", "pcm", "map", "untestable", "stiffness"]
 
 
 class LoopRule(BaseModel):
@@ -47,6 +47,10 @@ class LoopRules(BaseModel):
             if r.statistic == stat:
                 return r
         raise RuleError(self.source, f"no loop rule with statistic {stat!r}")
+
+    def optional(self, stat: str) -> LoopRule | None:
+        """The rule of ``stat``, or None where the rules file has none (an optional check)."""
+        return next((r for r in self.rule if r.statistic == stat), None)
 
     def get(self, rule_id: str) -> LoopRule:
         for r in self.rule:
