@@ -1033,3 +1033,30 @@ def test_capping_intels_overconfident_odometry_lets_the_optimiser_converge() -> 
         opt.optimize()
         steps[name] = opt.iterations()
     assert steps["file"] == 0 < steps["capped"]
+
+
+def test_no_map_is_solved_twice_from_the_same_start(tmp_path: Path, monkeypatch) -> None:
+    """Where corroboration admits every candidate cluster, the rounds after it start from the
+    map it already solved (the same edges from the same poses) instead of solving it again."""
+    import hashlib
+
+    from frontdiag.loops import verify
+    from frontdiag.loops.solve import solve
+
+    lap = 120
+    # three true clusters from lap 1 to lap 2, each too far from the others for the pair test
+    clusters = [(i, i + lap, i + lap) for s in (10, 50, 90) for i in range(s, s + 10, 2)]
+    short = [(k, k + 4, k + 4) for k in range(5, 2 * lap - 5, 20)]
+    g = read_graph(_two_lap_square(tmp_path / "sq.g2o", 30, clusters + short))
+    calls: list[str] = []
+
+    def recorded(graph, edges, init, **kw):  # type: ignore[no-untyped-def]
+        calls.append(hashlib.sha256(np.packbits(edges).tobytes() + init.tobytes()).hexdigest())
+        return solve(graph, edges, init, **kw)
+
+    monkeypatch.setattr(verify, "solve", recorded)
+    t = audit(g).table.set_index("i")
+    assert t.loc[[i for i, _, _ in clusters], "reason"].str.startswith(
+        "verified by other loops").all()
+    assert (t["verdict"] == "ok").all()
+    assert len(calls) == len(set(calls))

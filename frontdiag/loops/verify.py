@@ -167,9 +167,15 @@ def _stiffer(res: dict[str, F], chain_sigma: F, share: float) -> NDArray[np.bool
         return _raw_sigma(res) <= share * chain_sigma
 
 
+Solved = tuple[NDArray[np.bool_], F, dict[str, float]]
+"""A map already solved: its loops (a mask over the table), its poses and the solve's stats."""
+
+
 def _corroborate(result: LoopAudit, P: F, in_map: NDArray[np.bool_], res: dict[str, F],
-                 p_alarm: float, power_m: float, barred: NDArray[np.bool_]) -> NDArray[np.bool_]:
-    """Loops that passed without power, admitted because other clusters confirm them.
+                 p_alarm: float, power_m: float, barred: NDArray[np.bool_]
+                 ) -> tuple[NDArray[np.bool_], Solved | None]:
+    """Loops that passed without power, admitted because other clusters confirm them, and the
+    map of the verified loops plus every candidate, solved from ``P`` (None if not solved).
 
     The candidates passed the last round but the map was too loose between their poses
     (σ > ``power_m``). They are clustered by the pair test's groups (loops between the same
@@ -193,16 +199,16 @@ def _corroborate(result: LoopAudit, P: F, in_map: NDArray[np.bool_], res: dict[s
     idx = np.flatnonzero(cand)
     out = np.zeros(len(t), bool)
     if idx.size < 2:
-        return out
+        return out, None
     group = t["group"].to_numpy()[idx]
     # a loop without a consistent neighbour (group -1) is a cluster of its own
     label = np.where(group >= 0, group, -(idx + 2))
     clusters = np.unique(label)
     if clusters.size < 2:
-        return out
+        return out, None
     g = result.graph
     held = in_map | cand
-    P_all, _ = solve(g, map_edges(result, held), P, tol=1e-6)
+    P_all, st_all = solve(g, map_edges(result, held), P, tol=1e-6)
     system = map_system(result, P_all, held)
     sigma0_sq = float(map_test(result, P_all, held, seed=int(loops[idx[0]]),
                                system=system)["sigma0_sq"][0])
@@ -212,7 +218,7 @@ def _corroborate(result: LoopAudit, P: F, in_map: NDArray[np.bool_], res: dict[s
         p = chi2_dist.sf(T2 / sigma0_sq, g.k)
         ok = (p >= p_alarm) & (np.sqrt(var * sigma0_sq) <= power_m)
         out[mine[ok]] = True
-    return out
+    return out, (held, P_all, st_all)
 
 
 def leave_cluster_out(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
@@ -379,7 +385,7 @@ def verify_against_map(result: LoopAudit) -> None:
             "screen them, at the cost of that many solves")
         return True
 
-    def run_rounds(in_map: NDArray[np.bool_], P: F, first: int
+    def run_rounds(in_map: NDArray[np.bool_], P: F, first: int, solved: Solved | None = None
                    ) -> tuple[NDArray[np.bool_], F, dict[str, F], int]:
         res: dict[str, F] = {}
         r = first
@@ -389,12 +395,16 @@ def verify_against_map(result: LoopAudit) -> None:
         # converged, would take back (sphere2500 with grouped false loops: seven capped rounds,
         # 205 632 down to 15 370, then 92 true loops passing with power against the converged
         # map were left out when the rounds stopped). If no map converges within max_rounds
-        # (intel's never do), the rounds stop there as before.
+        # (intel's did not, before FD-LOP-005 capped its overconfident odometry), the rounds
+        # stop there as before. ``solved``: the first round's map, if already solved from P
         end = first + max_rounds
         converged_once = False
         for r in itertools.count(first):
             edges = map_edges(result, in_map)
-            P_warm, st_warm = solve(g, edges, P, tol=1e-6)
+            if r == first and solved is not None and np.array_equal(solved[0], in_map):
+                P_warm, st_warm = solved[1], solved[2]  # the same solve, from the same P
+            else:
+                P_warm, st_warm = solve(g, edges, P, tol=1e-6)
             if r == 1 or (prev is not None and (prev & ~in_map).any()
                           and st_warm.get("converged", 0.0)):
                 # also from the chordal start of this round's edges. The first map's chain
@@ -441,11 +451,11 @@ def verify_against_map(result: LoopAudit) -> None:
     in_map, P, res, rounds = run_rounds(in_map, P, 1)
     corroborated = np.zeros(len(t), bool)
     if corroborate:
-        extra = _corroborate(result, P, in_map, res, p_alarm, power_m,
-                             chain_refused & ~_stiffer(res, chain_sigma, overrule))
+        extra, solved = _corroborate(result, P, in_map, res, p_alarm, power_m,
+                                     chain_refused & ~_stiffer(res, chain_sigma, overrule))
         if extra.any():
             corroborated = extra
-            in_map, P, res, more = run_rounds(in_map | extra, P, rounds + 1)
+            in_map, P, res, more = run_rounds(in_map | extra, P, rounds + 1, solved)
             rounds = more
     result.map_poses = P
     if last and not last.get("converged", 1.0):
