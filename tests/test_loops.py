@@ -1060,3 +1060,28 @@ def test_no_map_is_solved_twice_from_the_same_start(tmp_path: Path, monkeypatch)
         "verified by other loops").all()
     assert (t["verdict"] == "ok").all()
     assert len(calls) == len(set(calls))
+
+
+def test_the_result_folder_holds_a_picture_of_the_map_with_every_loop(tmp_path: Path) -> None:
+    """loops.html: one self-contained page (plotly.js inlined) with the trajectory and each loop
+    drawn in its verdict's colour, hover text naming loop, vertices, verdict and residuals,
+    user text escaped; with --optimize a second panel, the map with every loop believed."""
+    import json
+    import re
+
+    gpath = _square_graph(tmp_path / "sq<b>.g2o", [(5, 45, 0.0), (7, 47, 4.0)])
+    for flags, panels in (([], 1), (["--optimize"], 2)):
+        out = tmp_path / f"out{len(flags)}"
+        assert main(["loops", str(gpath), "--out", str(out), "--quiet", *flags]) == 1
+        page = (out / "loops.html").read_text()
+        assert "<b>.g2o" not in page and "sq&lt;b&gt;.g2o" in page
+        assert "plotly.js v" in page or "Plotly" in page  # the library is in the page
+        spec = json.loads(re.search(r"Plotly\.newPlot\(\s*\"[^\"]+\",\s*(\[.*?\]),\s*\{",
+                                    page, re.S).group(1))
+        names = {tr["name"] for tr in spec}
+        assert {"trajectory", "kept (1)", "refused (1)"} <= names
+        assert len({tr.get("xaxis", "x") for tr in spec}) == panels
+        refused = next(tr for tr in spec if tr["name"] == "refused (1)")
+        assert refused["line"]["color"] == "rgb(214, 39, 40)"
+        assert refused["text"][0].startswith("loop 1: 7→47<br>fail FD-LOP-")
+        assert ("every loop believed" in page) == (panels == 2)

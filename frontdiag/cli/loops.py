@@ -51,7 +51,8 @@ def loops_cmd(
     graph_file: Path = typer.Argument(..., metavar="GRAPH", show_default=False,
                                       help="Pose graph: .g2o (SE2 / SE3:QUAT) or TORO .graph."),
     out: Path | None = typer.Option(None, "--out", "-o",
-                                    help="Result directory: loops.parquet, manifest.json."),
+                                    help="Result directory: loops.parquet, loops.html (the map with "
+                                         "every loop in its verdict's colour), manifest.json."),
     sqrt_info: bool = typer.Option(False, "--sqrt-info",
                                    help="The file stores the square root of the information."),
     layout: str = typer.Option("auto", "--layout", metavar="[auto|g2o|toro]",
@@ -112,18 +113,22 @@ def loops_cmd(
         typer.echo(explain_loop(result, pick_loop(result, explain)))
         return 0
     opt: dict[str, Any] | None = None
+    solved: dict[str, Any] = {}
     if optimize:
         from frontdiag.loops.optimize import compare_solutions
 
         if show:
             err.print("optimising with and without the flagged loops")
-        opt = compare_solutions(result)
+        opt = compare_solutions(result, solved)
     gate_result = gate_loops(result, fail_on)  # type: ignore[arg-type]
     summ = summary(result, top=top)
     if out_dir is not None:
         from frontdiag.loops.report import write_loops_table
 
         write_loops_table(out_dir, result)
+        from frontdiag.loops.figure import write_loops_html
+
+        write_loops_html(out_dir, result, summ, solved or None)
         write_manifest(out_dir, {"command": "loops", "input": {"path": str(graph_file)},
                                  "options": {"sqrt_info": sqrt_info, "layout": layout,
                                              "odom_max_gap": odom_max_gap,

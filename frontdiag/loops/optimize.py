@@ -111,9 +111,10 @@ def optimise(graph: PoseGraph, edges: NDArray[np.bool_], init: F) -> F:
     return solve_gtsam(graph, edges, init)
 
 
-def compare_solutions(result: LoopAudit) -> dict[str, Any]:
+def compare_solutions(result: LoopAudit, poses: dict[str, F] | None = None) -> dict[str, Any]:
     """Solve with every edge and without the flagged loops; the flagged loops' residuals
-    before / after and the ATE between the two maps."""
+    before / after and the ATE between the two maps. ``poses``, if given, receives the two
+    solutions (``all``, ``clean``)."""
     g = result.graph
     t = result.table
     every = np.ones(g.n_edges, bool)
@@ -122,6 +123,8 @@ def compare_solutions(result: LoopAudit) -> dict[str, Any]:
     # odometry chain, LM can stop in a local minimum metres from the optimum
     P_all = optimise(g, every, chordal_init(g, every, result.chain.P))
     P_clean = optimise(g, kept, chordal_init(g, kept, result.chain.P))
+    if poses is not None:
+        poses.update({"all": P_all, "clean": P_clean})
     flagged = t[t["verdict"] == "fail"].sort_values("displacement_m", ascending=False,
                                                     na_position="last")
     e = flagged["edge"].to_numpy()

@@ -99,7 +99,8 @@ def render_loops(console: Console, result: LoopAudit, summ: dict[str, Any], gate
     for note in summ["notes"]:
         console.print(f"[yellow]note:[/] {escape(note)}", highlight=False)
     if out_dir is not None:
-        console.print(f"[green]wrote[/] {escape(str(out_dir))}/{LOOPS_FILE}, manifest.json")
+        console.print(f"[green]wrote[/] {escape(str(out_dir))}/{LOOPS_FILE}, loops.html, "
+                      "manifest.json")
     if gate.passed:
         console.print(f"[green]gate passed[/] (fail-on {gate.fail_on})")
     else:
