@@ -990,6 +990,10 @@ def test_an_overconfident_edge_is_named_capped_and_the_others_untouched(tmp_path
     assert rows["stiffest"][0] | {"sigma": 0, "over_median": 0} == {
         "edge_line": 11, "i": 10, "j": 11, "odometry": True, "axis": "x", "sigma": 0,
         "over_median": 0}
+    assert main(["loops", str(path), "--explain", str(int(row["loop"]))]) == 0
+    assert "(its information capped at FD-LOP-005's line" in capsys.readouterr().out
+    assert main(["loops", str(path), "--explain", "0"]) == 0
+    assert "capped" not in capsys.readouterr().out
     off = audit(read_graph(path), _rules_switched_off(tmp_path, "cap"))
     assert not off.capped and np.array_equal(off.graph.info, g.info)
     assert any("not capped" in n for n in off.notes)

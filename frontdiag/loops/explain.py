@@ -35,6 +35,15 @@ def pick_loop(result: LoopAudit, key: str) -> int:
     return n
 
 
+def _capped(result: LoopAudit, edge: int) -> str:
+    """Said after the loop's stiffness when the audit capped its information (FD-LOP-005)."""
+    over = result.overconfident
+    if not result.capped or over is None or edge not in set(over.edges.tolist()):
+        return ""
+    return (f" (its information capped at FD-LOP-005's line, {over.max_over_median:g}x the "
+            "graph's median on an axis; the file claims more)")
+
+
 def explain_loop(result: LoopAudit, row: int) -> str:
     """Plain text: the loop, its chain, χ², the series-spring arithmetic and the verdict."""
     t = result.table.iloc[row]
@@ -62,7 +71,7 @@ def explain_loop(result: LoopAudit, row: int) -> str:
             f"{unit:.4g} m⁻²):",
             f"  chain compliance  {c_links:.4g} links in series -> k_chain = 1/{c_links:.4g} "
             f"= {k_chain:.4g}",
-            f"  loop stiffness    Ω = {kl:.4g}",
+            f"  loop stiffness    Ω = {kl:.4g}{_capped(result, int(t['edge']))}",
             f"  fold fraction     f = Ω/(Ω + k_chain) = {kl:.4g}/({kl:.4g} + {k_chain:.4g}) "
             f"= {f:.5f}",
             f"  if wrong, the optimiser moves the map {t['displacement_m']:.3f} m and leaves "
