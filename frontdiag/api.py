@@ -395,6 +395,8 @@ def _stream_notes(path: Path, rec: Recording, run: StreamRun,
                                 f"skipped; first: {st.first_error}{and_last(st)})")
         if st.conversion:
             notes.append(f"{stream.topic}: {st.conversion['note']}")
+        if st.prior_note:
+            notes.append(f"{stream.topic}: {st.prior_note}")
         if st.non_monotonic_stamps:
             notes.append(f"{stream.topic}: {st.non_monotonic_stamps} non-monotonic header "
                          "stamps")

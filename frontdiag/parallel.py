@@ -339,6 +339,7 @@ def _merge_counts(acc: SensorStream | None, cur: SensorStream | None) -> SensorS
         first_repeat=a.first_repeat if a.first_repeat is not None else b.first_repeat,
         first_identical=a.first_identical if a.first_identical is not None
         else b.first_identical,
-        conversion=a.conversion if a.conversion is not None else b.conversion)
+        conversion=a.conversion if a.conversion is not None else b.conversion,
+        prior_note=a.prior_note or b.prior_note)
     acc.index = cur.index
     return acc

@@ -32,6 +32,7 @@ from frontdiag.io.decode import (
 )
 from frontdiag.io.images import GrayConverter, is_keyframe, is_video_topic, video_format
 from frontdiag.io.readers import Recording
+from frontdiag.io.tf import TfOdometry
 from frontdiag.io.topics import TopicChoice
 from frontdiag.records import GAP_STATUS, CameraFrame, Intrinsics, LidarScan
 from frontdiag.timing import GapDetector
@@ -69,6 +70,8 @@ class TopicStats:
     # how 16-bit pictures were mapped to 8 bits (GrayConverter.mono16): shift, window, note;
     # None for 8-bit pictures
     conversion: dict[str, Any] | None = None
+    # where the LiDAR's motion prior came from when it was looked for on /tf (io/tf.py)
+    prior_note: str | None = None
 
 
 @dataclass(frozen=True)
@@ -451,7 +454,9 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
     out = StreamRun(rows, cam_stream, lid_stream)
     rec_start = rec.start_ns or 0
     s, e = time_window(rec, opts)
-    read_topics = [t for t in (choice.camera, choice.lidar, choice.odometry) if t]
+    tf_odom = TfOdometry() if choice.tf and lid_front is not None else None
+    tf_topics = (choice.tf, choice.tf_static) if tf_odom is not None else ()
+    read_topics = [t for t in (choice.camera, choice.lidar, choice.odometry, *tf_topics) if t]
     for stream in (cam_stream, lid_stream):
         if stream is not None:
             stream.window_start = s
@@ -476,6 +481,12 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
     # never extrapolates: hold decoded scans until odometry covers them (or stops coming).
     pending: deque[LidarScan] = deque()
 
+    def tf_poses() -> None:
+        """Hand the LiDAR frame's new poses on /tf to the prior (once its frame is chained)."""
+        assert tf_odom is not None and lid_front is not None
+        for t_ns, T in tf_odom.poses():
+            lid_front.add_odometry(t_ns, T)
+
     def release(now_ns: int | None) -> None:
         while pending and lid_stream is not None and lid_front is not None:
             scan = pending[0]
@@ -498,6 +509,16 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
                     except Exception as exc:
                         log.debug("odometry message skipped: %s", exc)
                     release(raw.log_ns)
+                    continue
+                if tf_odom is not None and raw.topic in (choice.tf, choice.tf_static):
+                    try:
+                        tf_odom.add(rec.deserialize(raw), raw.topic == choice.tf_static,
+                                    raw.log_ns)
+                    except Exception as exc:
+                        log.debug("tf message skipped: %s", exc)
+                    if tf_odom.resolved:
+                        tf_poses()
+                        release(raw.log_ns)
                     continue
                 if raw.topic == choice.camera and cam_stream and cam_front and conv:
                     if cam_stream.full and (lid_stream is None or lid_stream.full):
@@ -553,7 +574,10 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
                         continue
                     if lid_stream.repeats_scan(scan):
                         continue
-                    if choice.odometry:
+                    if tf_odom is not None and not tf_odom.resolved and scan.frame_id \
+                            and tf_odom.resolve(scan.frame_id):
+                        tf_poses()
+                    if choice.odometry or tf_odom is not None:
                         pending.append(scan)
                         release(raw.log_ns)
                     else:
@@ -571,6 +595,8 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
             out.interrupted = True
         if not out.interrupted:
             release(None)  # the scans still waiting for odometry that will not come
+        if tf_odom is not None and lid_stream is not None:
+            lid_stream.stats.prior_note = tf_prior_note(choice, tf_odom)
         if cam_stream is not None and conv is not None:
             cam_stream.stats.conversion = conv.mono16
         if cam_front is not None and cam_stream is not None:
@@ -579,6 +605,18 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
             cam_front.finish()  # the end of the frames read closes the open interval
             complete()
     return out
+
+
+def tf_prior_note(choice: TopicChoice, tf_odom: TfOdometry) -> str:
+    """Where the LiDAR's motion prior came from, when it was looked for on /tf."""
+    if tf_odom.resolved:
+        static = f" and {choice.tf_static}" if choice.tf_static and len(tf_odom.chain) > 1 \
+            else ""
+        return (f"no odometry topic; motion prior from {choice.tf}{static}: "
+                f"{tf_odom.describe()}")
+    seen = ", ".join(f"{tf_odom.parent[c]} → {c}" for c in sorted(tf_odom.dynamic)) or "none"
+    return (f"no odometry topic, and {choice.tf} chains no odometry frame to the LiDAR's "
+            f"frame (odometry transforms seen: {seen}); constant-velocity prior")
 
 
 ODOM_WAIT_NS = 1_000_000_000

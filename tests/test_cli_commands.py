@@ -233,3 +233,101 @@ def test_explain_states_what_matching_did_on_a_frame_with_no_pose() -> None:
         "none close); 13 matches kept; the previous frame is 1 s earlier")
     # what is missing is left out, not printed as nan
     assert matching_facts({"n_keypoints": 4, "n_matches": float("nan")}, None) == "4 keypoints"
+
+
+def _mcap_without(src: Path, dst: Path, *drop: str) -> Path:
+    """A copy of an MCAP file without the messages of ``drop`` (raw bytes, nothing re-encoded)."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with src.open("rb") as f, dst.open("wb") as g:
+        r = make_reader(f)
+        w = Writer(g)
+        head = r.get_header()
+        w.start(head.profile, head.library)
+        schemas: dict[int, int] = {}
+        chans: dict[int, int] = {}
+        for schema, ch, msg in r.iter_messages(log_time_order=False):
+            if ch.topic in drop:
+                continue
+            if schema is not None and schema.id not in schemas:
+                schemas[schema.id] = w.register_schema(schema.name, schema.encoding, schema.data)
+            if ch.id not in chans:
+                chans[ch.id] = w.register_channel(ch.topic, ch.message_encoding,
+                                                  schemas.get(ch.schema_id, 0), ch.metadata)
+            w.add_message(chans[ch.id], msg.log_time, msg.data, msg.publish_time, msg.sequence)
+        w.finish()
+    return dst
+
+
+def test_without_an_odometry_topic_the_prior_comes_from_tf(tmp_path: Path) -> None:
+    """A recording that kept /tf and /tf_static but not /odom: the LiDAR's prior is the
+    odometry frame's transform on /tf chained to the LiDAR's frame by /tf_static (odom →
+    base_link → lidar), and the manifest says so; the same LiDAR rows as with /odom on this
+    straight drive. Without /tf_static nothing joins base_link to the LiDAR's frame: a
+    constant-velocity prior, and the note names what /tf held."""
+    sample = Path(__file__).resolve().parents[1] / "sample_logs" / "dock_corridor.mcap"
+    kw = {"no_camera": True, "max_frames": 8, "no_rules": True}
+    ref = frontdiag.analyze(sample, **kw)
+    tf = frontdiag.analyze(_mcap_without(sample, tmp_path / "tf.mcap", "/odom"), **kw)
+    assert tf.manifest["topics"]["odometry"] is None
+    assert list(tf.table["lidar_prior"]) == list(ref.table["lidar_prior"])
+    assert set(tf.table["lidar_prior"][1:]) == {"odometry"}
+    assert ("/lidar/points: no odometry topic; motion prior from /tf and /tf_static: odom → "
+            "base_link → lidar") in tf.manifest["notes"]
+    for col in ("icp_rmse_m", "icp_fitness", "lidar_eig_min", "deskew_m"):
+        assert tf.table[col].to_numpy() == pytest.approx(ref.table[col].to_numpy(), rel=1e-3,
+                                                         abs=1e-6, nan_ok=True), col
+    lone = frontdiag.analyze(_mcap_without(sample, tmp_path / "lone.mcap", "/odom",
+                                           "/tf_static"), **kw)
+    assert set(lone.table["lidar_prior"][2:]) == {"constant_velocity"}
+    assert any("/tf chains no odometry frame to the LiDAR's frame (odometry transforms seen: "
+               "odom → base_link)" in n for n in lone.manifest["notes"])
+
+
+def _tf(parent: str, child: str, t_ns: int, xyz: tuple[float, float, float],
+        yaw: float = 0.0):  # type: ignore[no-untyped-def]
+    """A TransformStamped as a deserialised message reads: yaw about z, then ``xyz``."""
+    from types import SimpleNamespace as N
+
+    import numpy as np
+
+    q = N(x=0.0, y=0.0, z=float(np.sin(yaw / 2)), w=float(np.cos(yaw / 2)))
+    return N(header=N(frame_id=parent, stamp=N(sec=t_ns // 10**9, nanosec=t_ns % 10**9)),
+             child_frame_id=child,
+             transform=N(translation=N(x=xyz[0], y=xyz[1], z=xyz[2]), rotation=q))
+
+
+def test_tf_odometry_chains_the_sensor_frame_through_the_static_tree() -> None:
+    """T_odom_lidar = T_odom_base(t) · T_base_mount · T_mount_lidar, frames compared without
+    ROS 1's leading slash; map → odom (a localiser's corrections) is not odometry; each pose
+    is handed out once, in order, and only after the sensor's frame is chained."""
+    from types import SimpleNamespace as N
+
+    import numpy as np
+
+    from frontdiag.io.decode import pose_matrix
+    from frontdiag.io.tf import TfOdometry
+
+    def T(xyz, yaw):  # type: ignore[no-untyped-def]
+        return pose_matrix(xyz, (0.0, 0.0, np.sin(yaw / 2), np.cos(yaw / 2)))
+
+    tf = TfOdometry()
+    tf.add(N(transforms=[_tf("/base_link", "mount", 0, (0.5, 0.0, 0.3), 0.2),
+                         _tf("mount", "lidar", 0, (0.0, 0.1, 0.0), -0.5)]), static=True)
+    tf.add(N(transforms=[_tf("map", "odom", 1_000, (9.0, 9.0, 0.0), 1.0),
+                         _tf("odom", "base_link", 1_000, (1.0, 2.0, 0.0), 0.3)]), static=False)
+    assert tf.poses() == [] and not tf.resolved
+    assert not tf.resolve("camera")  # no static path from it
+    assert tf.resolve("/lidar") and tf.describe() == "odom → base_link → mount → lidar"
+    tf.add(N(transforms=[_tf("odom", "base_link", 2_000, (1.5, 2.0, 0.0), 0.4),
+                         _tf("odom", "base_link", 1_500, (0.0, 0.0, 0.0), 0.0)]), static=False)
+    got = tf.poses()
+    assert [t for t, _ in got] == [1_000, 2_000]  # the stamp going back is dropped
+    X = T((0.5, 0.0, 0.3), 0.2) @ T((0.0, 0.1, 0.0), -0.5)
+    for (_, P), base in zip(got, (T((1.0, 2.0, 0.0), 0.3), T((1.5, 2.0, 0.0), 0.4)),
+                            strict=True):
+        np.testing.assert_allclose(P, base @ X, atol=1e-12)
+    assert tf.poses() == []
+    tf.add(N(transforms=[_tf("odom", "base_link", 3_000, (2.0, 2.0, 0.0), 0.5)]), static=False)
+    assert [t for t, _ in tf.poses()] == [3_000]

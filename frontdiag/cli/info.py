@@ -66,7 +66,9 @@ def info_cmd(
         c = rep.choice
         con.print("[bold]analyze would read[/]: "
                   + escape(f"camera {c.camera or '—'} (CameraInfo {c.camera_info or '—'}), "
-                           f"LiDAR {c.lidar or '—'}, odometry {c.odometry or '—'}"),
+                           f"LiDAR {c.lidar or '—'}, odometry "
+                           + (c.odometry or (f"from {c.tf} (an odometry frame chained to the "
+                                             "LiDAR's frame, if one is)" if c.tf else "—"))),
                   highlight=False)
     else:
         con.print(f"[bold]analyze cannot start on its own[/]: {escape(str(rep.choice_error))}",

@@ -9,6 +9,7 @@ from frontdiag.io import foxglove
 from frontdiag.io.camera_info import CAMERA_INFO_TYPES, camera_info_topic_for
 from frontdiag.io.images import IMAGE_TYPES
 from frontdiag.io.readers import TopicInfo
+from frontdiag.io.tf import TF_TYPES
 
 LIDAR_TYPES = ("sensor_msgs/msg/PointCloud2", "sensor_msgs/msg/LaserScan",
                # Livox drivers' own scan message (frontdiag/lidar/livox.py)
@@ -38,10 +39,14 @@ class TopicChoice:
     lidar_type: str | None = None
     odometry: str | None = None
     notes: list[str] = field(default_factory=list)
+    tf: str | None = None
+    """``/tf``, read for the LiDAR's motion prior where no odometry topic is (io/tf.py)."""
+    tf_static: str | None = None
 
     @property
     def topics(self) -> list[str]:
-        return [t for t in (self.camera, self.camera_info, self.lidar, self.odometry) if t]
+        return [t for t in (self.camera, self.camera_info, self.lidar, self.odometry, self.tf,
+                            self.tf_static) if t]
 
 
 def candidates(topics: list[TopicInfo], types: tuple[str, ...]) -> list[TopicInfo]:
@@ -128,6 +133,14 @@ def choose_topics(topics: list[TopicInfo], *, camera_topic: str | None = None,
             elif len(usable) > 1:
                 notes.append("several odometry topics; LiDAR uses a constant-velocity prior "
                              "(pass --odom-topic to use one)")
+    tf = tf_static = None
+    if lid is not None and odom is None and odom_topic is None:
+        tfs = candidates(topics, TF_TYPES)
+        dyn = [t for t in tfs if not t.topic.rstrip("/").endswith("tf_static")]
+        tf = next((t.topic for t in dyn if t.topic.strip("/") == "tf"),
+                  dyn[0].topic if len(dyn) == 1 else None)
+        if tf is not None:
+            tf_static = next((t.topic for t in tfs if t.topic.strip("/") == "tf_static"), None)
     if cam is None and lid is None:
         if depth and use_lidar:
             raise TopicError("no usable sensor topics: the only images are depth images ("
@@ -143,4 +156,5 @@ def choose_topics(topics: list[TopicInfo], *, camera_topic: str | None = None,
         raise TopicError("nothing left to analyze with the sensors that were switched off")
     return TopicChoice(camera=cam.topic if cam else None, camera_type=cam.msgtype if cam else None,
                        camera_info=info, lidar=lid.topic if lid else None,
-                       lidar_type=lid.msgtype if lid else None, odometry=odom, notes=notes)
+                       lidar_type=lid.msgtype if lid else None, odometry=odom, notes=notes,
+                       tf=tf, tf_static=tf_static)

@@ -1,0 +1,125 @@
+"""The LiDAR's motion prior from ``/tf`` where a recording has no ``nav_msgs/Odometry`` topic.
+
+Mobile robots publish their wheel or visual odometry as the transform of an odometry frame
+(``odom``, REP 105) to the robot's base frame on ``/tf``, and where each sensor sits on the
+robot on ``/tf_static``. Many recordings keep those and drop the ``Odometry`` topic itself.
+:class:`TfOdometry` collects both and, once the LiDAR's own frame (its messages'
+``header.frame_id``) is known, chains it to the odometry frame:
+
+    T_odom_lidar(t) = T_odom_X(t) · T_X_lidar
+
+where ``X`` is the frame whose transform from an odometry frame ``/tf`` carries (usually
+``base_link`` or ``base_footprint``) and ``T_X_lidar`` is composed from ``/tf_static`` along the
+frames between them. The prior is then the motion of the LiDAR itself, lever arm included (an
+``Odometry`` topic gives the base's).
+
+Only transforms whose parent is an odometry frame are kept from ``/tf`` (a frame named ``odom``,
+or ending in ``/odom`` or ``_odom``), at most :data:`MAX_POSES` of them a child, so memory stays
+bounded however long the recording; the map → odom transform of a localiser jumps at every
+correction and is not odometry.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import Any
+
+import numpy as np
+
+from frontdiag.io.decode import pose_matrix, stamp_ns
+
+TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
+MAX_POSES = 200_000  # per child frame: 30 min at 100 Hz
+MAX_FRAMES = 64  # child frames of an odometry frame followed before one is chosen
+
+
+def frame(name: str) -> str:
+    """A frame id as tf2 compares them (ROS 1 names may carry a leading slash)."""
+    return name.lstrip("/")
+
+
+def is_odometry_frame(name: str) -> bool:
+    n = frame(name)
+    return n == "odom" or n.endswith("/odom") or n.endswith("_odom")
+
+
+def transform_matrix(tf: Any) -> np.ndarray:
+    """4x4 of a ``geometry_msgs/Transform``."""
+    p, q = tf.translation, tf.rotation
+    return pose_matrix((p.x, p.y, p.z), (q.x, q.y, q.z, q.w))
+
+
+class TfOdometry:
+    """Poses of one sensor frame in an odometry frame, from ``/tf`` and ``/tf_static``."""
+
+    def __init__(self) -> None:
+        self.static: dict[str, tuple[str, np.ndarray]] = {}  # child -> (parent, T_parent_child)
+        self.dynamic: dict[str, deque[tuple[int, np.ndarray]]] = {}  # child of an odom frame
+        self.parent: dict[str, str] = {}  # the odometry frame of each such child
+        self.count: dict[str, int] = {}  # poses ever appended a child (the deque is bounded)
+        self.base: str | None = None  # X: the child chained to the sensor
+        self.T_base_sensor: np.ndarray | None = None
+        self.chain: list[str] = []  # sensor frame up to X, for the notes
+        self._sent = 0  # poses of X already handed out
+
+    def add(self, msg: Any, static: bool, log_ns: int = 0) -> None:
+        """One ``TFMessage``: every transform in it (a transform unstamped takes ``log_ns``)."""
+        for tr in getattr(msg, "transforms", ()) or ():
+            child, parent = frame(tr.child_frame_id), frame(tr.header.frame_id)
+            if not child or not parent:
+                continue
+            T = transform_matrix(tr.transform)
+            if static:
+                self.static[child] = (parent, T)
+            elif is_odometry_frame(parent):
+                poses = self.dynamic.get(child)
+                if poses is None:
+                    if len(self.dynamic) >= MAX_FRAMES:
+                        continue
+                    poses = self.dynamic[child] = deque(maxlen=MAX_POSES)
+                    self.parent[child] = parent
+                    self.count[child] = 0
+                t = stamp_ns(tr, log_ns)
+                if t > 0 and (not poses or t > poses[-1][0]):
+                    poses.append((t, T))
+                    self.count[child] += 1
+
+    @property
+    def resolved(self) -> bool:
+        return self.base is not None
+
+    def resolve(self, sensor_frame: str) -> bool:
+        """Chain ``sensor_frame`` to a child of an odometry frame through static transforms
+        (the sensor frame itself may be that child); whether it could."""
+        if self.base is not None:
+            return True
+        s = frame(sensor_frame)
+        T = np.eye(4)
+        path = [s]
+        for _ in range(32):  # a tree deeper than this is a loop in the static transforms
+            if s in self.dynamic:
+                self.base, self.T_base_sensor, self.chain = s, T, path
+                return True
+            up = self.static.get(s)
+            if up is None:
+                return False
+            s, T = up[0], up[1] @ T
+            path.append(s)
+        return False
+
+    def poses(self) -> list[tuple[int, np.ndarray]]:
+        """The sensor's poses in the odometry frame not handed out yet, in time order."""
+        if self.base is None or self.T_base_sensor is None:
+            return []
+        q = self.dynamic[self.base]
+        total = self.count[self.base]
+        fresh = min(total - self._sent, len(q))  # the deque may have forgotten the oldest
+        self._sent = total
+        new = [q[i] for i in range(len(q) - fresh, len(q))]
+        return [(t, T @ self.T_base_sensor) for t, T in new]
+
+    def describe(self) -> str:
+        """The chain for the notes: ``odom → base_link → … → lidar``."""
+        if self.base is None:
+            return ""
+        return " → ".join([self.parent[self.base], *reversed(self.chain)])
