@@ -8,11 +8,19 @@ import typer
 
 HELP = """The frontend's latency budget on a target computer, stage by stage.
 
-Derived (default): each stage's work (pyramid pixels, keypoints, candidates, RANSAC iterations) times the target's per-unit coefficients, then the period, utilisation and margin.
+Derived (default): each stage's work (pyramid pixels, keypoints, candidates,
+RANSAC iterations) times the target's per-unit coefficients, then the
+period, utilisation and margin.
 
-Measured (--from RESULT_DIR): the per-stage timings `frontdiag analyze --out` recorded on this machine, as p50/p99/p99.9/max, projected onto the target by the ratio of the target's coefficients to this machine's (an estimate, and the output says so), with the frames that would miss the deadline.
+Measured (--from RESULT_DIR): the per-stage timings `frontdiag analyze
+--out` recorded on this machine, as p50/p99/p99.9/max, projected onto the
+target by the ratio of the target's coefficients to this machine's (an
+estimate, and the output says so), with the frames that would miss the
+deadline.
 
-Targets are TOML files in rules/targets (or a path to one); --calibrate writes one for this machine. Gates: --max-util and --max-p999-ms exit 1 when over, 2 on bad input.
+Targets are TOML files in rules/targets (or a path to one); --calibrate
+writes one for this machine. Gates: --max-util and --max-p999-ms exit 1 when
+over, 2 on bad input.
 
 Examples:
 

@@ -9,8 +9,9 @@ import typer
 
 from frontdiag.cli import EPILOG
 
-HELP = """Show topics, message types, counts, rates and duration of a recording, which topics
-analyze would choose, and anything odd (missing CameraInfo, stamp gaps, damage).
+HELP = """Show topics, message types, counts, rates and duration of a recording, which
+topics analyze would choose, and anything odd (missing CameraInfo, stamp
+gaps, damage).
 
 Examples:
 

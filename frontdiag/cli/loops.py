@@ -10,14 +10,19 @@ import typer
 
 from frontdiag.cli import EPILOG
 
-HELP = """Test the loop closures of a pose graph (g2o or TORO) before an optimiser hides them.
+HELP = """Test the loop closures of a pose graph (g2o, TORO) before optimisation.
 
-Each loop is checked against the odometry chain between its two poses (residual in m and deg,
-Mahalanobis chi-square under chain + loop covariance), against the neighbouring loops (pairwise
-consistency, the largest consistent set as in PCM), and against the map optimised from the loops
-that passed. A false loop with information 100 against a 54-link chain of stiffness 1/54 takes
-f = 0.99981 of its claim: a 3 m lie leaves 0.6 mm after optimisation. The residual before
-optimisation shows it; this command ranks such loops by the displacement they would cause.
+Each loop is checked against the odometry chain between its two poses
+(residual in m and deg, Mahalanobis chi-square under chain + loop
+covariance), against the neighbouring loops (pairwise consistency, the
+largest consistent set as in PCM), and against the map optimised from the
+loops that passed. A false loop with information 100 against a 54-link chain
+of stiffness 1/54 takes f = 0.99981 of its claim: a 3 m lie leaves 0.6 mm
+after optimisation. The residual before optimisation shows it; this command
+ranks such loops by the displacement they would cause. Edges that claim an
+impossible certainty (information a million times the graph's median on an
+axis, FD-LOP-005) are named with their file line; they stall every
+Levenberg-Marquardt, so the audit runs with them capped.
 
 Examples:
 
@@ -35,12 +40,12 @@ Examples:
 
   frontdiag loops run.g2o --optimize                 # solve with and without flagged loops
 
+  frontdiag loops run.g2o --optimize --out audit/    # audit/loops.html: the fold, side by side
+
   frontdiag loops run.g2o --calibrate                # covariances scaled by the short cycles
 
-
-Exit codes: 0 nothing at or above --fail-on, 1 a loop at or above --fail-on, 2 bad input /
-usage / config, 3 internal error.
-"""
+Exit codes: 0 nothing at or above --fail-on, 1 a loop at or above --fail-on,
+2 bad input / usage / config, 3 internal error."""
 
 
 def register(app: typer.Typer) -> None:

@@ -11,13 +11,15 @@ from frontdiag.cli import EPILOG
 
 HELP = """Write one self-contained HTML report of an `analyze --out` directory.
 
-The verdict and the gate first, then one plot per metric over time (thresholds drawn, episodes
-shaded), the worst frame of each episode annotated (keypoints, E inliers and outliers, the 8x6
-grid counts, flow to the reference) with its explanation, and the latency budget when a target
-is given. The page makes no network request: open it offline, attach it to a CI job.
+The verdict and the gate first, then one plot per metric over time
+(thresholds drawn, episodes shaded), the worst frame of each episode
+annotated (keypoints, E inliers and outliers, the 8x6 grid counts, flow to
+the reference) with its explanation, and the latency budget when a target is
+given. The page makes no network request: open it offline, attach it to a CI
+job.
 
-Thumbnails re-read their frames from the recording named in manifest.json; without it they show
-the annotations on grey.
+Thumbnails re-read their frames from the recording named in manifest.json;
+without it they show the annotations on grey.
 
 Examples:
 
