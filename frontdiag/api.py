@@ -34,7 +34,7 @@ from frontdiag.io.camera_info import (
 )
 from frontdiag.io.decode import header_stamp_ns, odometry_pose
 from frontdiag.io.images import is_video_message
-from frontdiag.io.readers import Recording, open_recording, recording_size
+from frontdiag.io.readers import Recording, damage_hint, open_recording, recording_size
 from frontdiag.io.topics import TopicChoice, choose_topics
 from frontdiag.metrics import CAMERA_COLUMNS, LIDAR_COLUMNS
 from frontdiag.records import GAP_STATUS, SIZE_STATUS, Intrinsics
@@ -384,7 +384,8 @@ def _stream_notes(path: Path, rec: Recording, run: StreamRun,
     fault = run.fault
     if rec.fault is not None and fault is None:
         fault = RecordingError(path, _problem(path, rec.fault.message),
-                               hint="the frames before the damage were analysed and kept")
+                               hint=damage_hint(rec.fault),
+                               resumed=rec.fault.resumed)
     for stream in (run.cam, run.lid):
         if stream is None:
             continue

@@ -49,8 +49,15 @@ def _rebuild(cls: type[FrontdiagError], message: str, attrs: dict[str, object]) 
 class RecordingError(FrontdiagError):
     """A recording is missing, unreadable, truncated or of an unknown container."""
 
-    def __init__(self, path: Path | str, problem: str, *, hint: str | None = None) -> None:
+    resumed = False
+    """Damage met while streaming after which reading went on (a split recording's later
+    parts): frames after the damage were analysed too."""
+
+    def __init__(self, path: Path | str, problem: str, *, hint: str | None = None,
+                 resumed: bool = False) -> None:
         self.path = Path(path)
+        if resumed:
+            self.resumed = True
         super().__init__(f"{path}: {problem}", hint=hint)
 
 
@@ -87,8 +94,15 @@ class RuleError(FrontdiagError):
 class OutputError(FrontdiagError):
     """An output location (--out, --junit, ...) cannot be written, or would overwrite an input."""
 
-    def __init__(self, path: Path | str, problem: str, *, hint: str | None = None) -> None:
+    resumed = False
+    """Damage met while streaming after which reading went on (a split recording's later
+    parts): frames after the damage were analysed too."""
+
+    def __init__(self, path: Path | str, problem: str, *, hint: str | None = None,
+                 resumed: bool = False) -> None:
         self.path = Path(path)
+        if resumed:
+            self.resumed = True
         super().__init__(f"{path}: {problem}", hint=hint)
 
 

@@ -32,7 +32,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from frontdiag.io.readers import Recording, open_recording
+from frontdiag.io.readers import Recording, damage_hint, open_recording
 from frontdiag.io.topics import TopicChoice
 from frontdiag.records import Intrinsics
 from frontdiag.runner import (
@@ -194,7 +194,7 @@ def reader_fault(path: Path, rec: Recording, run: StreamRun) -> None:
 
     if rec.fault is not None and run.fault is None:
         run.fault = RecordingError(path, rec.fault.message.split(": ", 1)[-1],
-                                   hint="the frames before the damage were analysed and kept")
+                                   hint=damage_hint(rec.fault), resumed=rec.fault.resumed)
 
 
 def run_windows(path: Path, rec: Recording, choice: TopicChoice, opts: Any,

@@ -140,6 +140,28 @@ def test_a_split_bag_folder_with_a_cut_last_part_keeps_the_earlier_parts(
     assert "run_1.bag" in (one_error_line(o.err) or "")
 
 
+
+def test_a_damaged_middle_part_costs_only_its_own_messages(tmp_path: Path) -> None:
+    """Three split ROS 1 parts, the middle one cut in half: the parts before and after it are
+    analysed, the error line names the middle part and says reading went on."""
+    folder = tmp_path / "split"
+    folder.mkdir()
+    write_recording(folder / "run_0.bag", "bag", n=8)
+    mid = write_recording(tmp_path / "run_1.bag", "bag", n=8,
+                          stamps=[T0 + (8 + i) * 50_000_000 for i in range(8)])
+    (folder / "run_1.bag").write_bytes(mid.read_bytes()[:len(mid.read_bytes()) // 2])
+    write_recording(folder / "run_2.bag", "bag", n=8,
+                    stamps=[T0 + (16 + i) * 50_000_000 for i in range(8)])
+    o = analyze(folder, tmp_path / "o")
+    line = one_error_line(o.err) or ""
+    assert o.code == 2 and "run_1.bag" in line and "reading went on with the 1 part(s)" in line
+    assert "frames, before it and in the parts after it, were analysed" in o.err
+    t = pd.read_parquet(tmp_path / "o" / "frames.parquet")
+    stamps = set(t["t_ns"].tolist())
+    assert {T0 + i * 50_000_000 for i in range(8)} <= stamps  # the first part, whole
+    assert {T0 + (16 + i) * 50_000_000 for i in range(8)} <= stamps  # the last part, whole
+    assert len(stamps) < 24  # the cut part lost its tail
+
 def _mcap_records(data: bytes) -> list[tuple[int, int, int]]:
     """(offset, opcode, length) of the top-level records of an MCAP file."""
     out, pos = [], 8

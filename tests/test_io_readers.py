@@ -121,7 +121,8 @@ def _split_without_metadata(tmp: Path, fmt: str, n: int, per_part: int) -> Path:
 def test_split_ros2_parts_without_metadata_read_as_one_recording(tmp_path: Path,
                                                                  fmt: str) -> None:
     """A recorder killed mid-recording leaves its split parts without metadata.yaml: they are
-    read in order as one recording; a last part cut short keeps the parts before it."""
+    read in order as one recording; a part cut short costs only its own messages after the
+    damage (a middle one: the parts after it are read too)."""
     from frontdiag.fleet import discover
     from frontdiag.inspect import inspect_recording
     from frontdiag.io.readers import plan
@@ -139,12 +140,22 @@ def test_split_ros2_parts_without_metadata_read_as_one_recording(tmp_path: Path,
         assert rec.fault is None
         np.testing.assert_array_equal(
             np.asarray(rec.deserialize(got[7]).data).reshape(120, 160), frame(7))
+    middle = sorted(folder.iterdir())[1]
+    whole = middle.read_bytes()
+    middle.write_bytes(whole[:300])  # cannot even be opened: its frames 5-9 are lost
+    with open_recording(folder) as rec:
+        got = list(rec.messages(["/cam/image_raw"]))
+        assert [m.log_ns for m in got] == [T0 + i * DT for i in (*range(5), 10, 11)]
+        assert rec.fault is not None and rec.fault.resumed
+        assert middle.name in rec.fault.message and "after it" in rec.fault.message
+    middle.write_bytes(whole)
     last = sorted(folder.iterdir())[-1]
     last.write_bytes(last.read_bytes()[:300])
     with open_recording(folder) as rec:
         got = list(rec.messages(["/cam/image_raw"]))
         assert [m.log_ns for m in got] == [T0 + i * DT for i in range(10)]
         assert rec.fault is not None and last.name in rec.fault.message
+        assert not rec.fault.resumed and "after it" not in rec.fault.message
 
 
 def test_standalone_db3_without_metadata(tmp_path: Path) -> None:

@@ -295,7 +295,9 @@ def analyze_cmd(
         return EXIT_INTERRUPTED
     if isinstance(result.fault, RecordingError):
         # one line: the file, the damage, and what was kept
-        kept = f"{len(result.table)} frames before it were analysed"
+        kept = (f"{len(result.table)} frames, before it and in the parts after it, were "
+                "analysed" if result.fault.resumed else
+                f"{len(result.table)} frames before it were analysed")
         kept += f" and written to {out_dir}" if out_dir is not None else " (pass --out to keep them)"
         raise FrontdiagError(f"{result.fault}; {kept}")
     if result.fault is not None:
@@ -321,7 +323,9 @@ def _incomplete(gate_result: Any, result: Any) -> Any:
         why, code = "interrupted: the verdicts cover only the frames analysed before Ctrl-C (or SIGTERM)", \
             EXIT_INTERRUPTED
     else:
-        why, code = f"input damaged: the verdicts cover only the frames before it ({result.fault})", \
+        span = "the frames read" if getattr(result.fault, "resumed", False) else \
+            "the frames before it"
+        why, code = f"input damaged: the verdicts cover only {span} ({result.fault})", \
             getattr(result.fault, "exit_code", 2)
     return replace(gate_result, exit_code=code, reasons=[*gate_result.reasons, why],
                    incomplete=why)

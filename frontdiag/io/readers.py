@@ -59,6 +59,17 @@ class ReadFault:
 
     message: str
     after_messages: int
+    resumed: bool = False
+    """Whether reading went on after the damage (the parts after a damaged part of a split
+    recording): the messages after it were delivered too."""
+
+
+def damage_hint(fault: ReadFault) -> str:
+    """What of a damaged recording was analysed, for the error line's hint."""
+    if fault.resumed:
+        return ("the frames before the damage and those of the parts after it were analysed "
+                "and kept")
+    return "the frames before the damage were analysed and kept"
 
 
 class Recording(Protocol):
@@ -248,14 +259,18 @@ class _Alias:
 
 
 class ChainedRecording(_Base):
-    """Split ROS 1 bags read one part after another, so a damaged part keeps the parts before
-    it: the messages of each part up to its damage, then the damage, naming the part."""
+    """Split bags read one part after another, so a damaged part costs only its own messages
+    after the damage: the parts before it and after it are read whole. The first damage is the
+    recording's fault, naming the part (and saying the parts after it were read)."""
 
     backend = "rosbags"
 
     def __init__(self, path: Path, parts: Sequence[Recording]) -> None:
         self.path = path
-        self.parts = sorted(parts, key=lambda p: (p.start_ns is None, p.start_ns or 0))
+        # in time order; a part whose start is unknown (damaged before its first message) keeps
+        # its place in the split's numbering, which is the recorder's order too
+        known = all(p.start_ns is not None for p in parts)
+        self.parts = sorted(parts, key=lambda p: p.start_ns or 0) if known else list(parts)
         self.backend = "+".join(dict.fromkeys(p.backend for p in self.parts if p.backend))
         self.fault = next((p.fault for p in self.parts if p.fault is not None), None)
         starts = [p.start_ns for p in self.parts if p.start_ns is not None]
@@ -279,17 +294,19 @@ class ChainedRecording(_Base):
         wanted = list(topics)
         self.fault = None
         n = 0
-        for part in self.parts:
+        for k, part in enumerate(self.parts):
             for raw in part.messages(wanted, start_ns, end_ns):
                 n += 1
                 yield RawMessage(raw.topic, raw.msgtype, raw.log_ns, raw.data, (part, raw))
-            if part.fault is not None:
+            if part.fault is not None and self.fault is None:
                 inner = part.fault.message.removeprefix(f"{part.path}: ")
                 _, sep, reason = inner.partition(" messages (")
                 reason = reason[:-1] if sep and reason.endswith(")") else inner
+                after = len(self.parts) - 1 - k
+                more = f"; reading went on with the {after} part(s) after it" if after else ""
                 self.fault = ReadFault(f"{self.path}: damaged after {n} messages (in "
-                                       f"{part.path.name}: {reason})", n)
-                return
+                                       f"{part.path.name}: {reason}){more}", n,
+                                       resumed=after > 0)
 
     def deserialize(self, raw: RawMessage) -> Any:
         part, inner = raw.key
@@ -785,8 +802,8 @@ def _problem_of(exc: RecordingError, path: Path) -> str:
 
 
 def _parts(files: Sequence[Path], open_part: Callable[[Path], Recording]) -> list[Recording]:
-    """The parts of a split recording opened in order, up to and including the first one that
-    cannot be opened (the parts after it are never reached: a chain stops at its damage)."""
+    """The parts of a split recording opened in order; one that cannot be opened stands in the
+    chain as its damage (no messages), and the parts after it are read."""
     out: list[Recording] = []
     for f in files:
         try:
@@ -795,7 +812,6 @@ def _parts(files: Sequence[Path], open_part: Callable[[Path], Recording]) -> lis
             if not out:  # nothing before it: the recording cannot be read
                 raise
             out.append(_Unreadable(f, exc, out[-1].end_ns))
-            break
     return out
 
 
