@@ -127,32 +127,30 @@ def test_a_db3_missing_its_last_byte_is_reported(sources: dict[str, Path], tmp_p
     assert o.code == 2 and o.rows > 0 and one_error_line(o.err)
 
 
-def test_a_split_bag_folder_with_a_cut_last_part_keeps_the_earlier_parts(
-        tmp_path: Path) -> None:
+def _split_bags(tmp_path: Path, parts: int, cut: int, n: int = 8) -> Path:
+    """A folder of ``parts`` split ROS 1 bags of ``n`` frames each (run_0.bag, ...), part
+    ``cut`` cut in half."""
     folder = tmp_path / "split"
     folder.mkdir()
-    write_recording(folder / "run_0.bag", "bag", n=8)
-    last = write_recording(tmp_path / "run_1.bag", "bag", n=8,
-                           stamps=[T0 + (8 + i) * 50_000_000 for i in range(8)])
-    (folder / "run_1.bag").write_bytes(last.read_bytes()[:len(last.read_bytes()) // 2])
-    o = analyze(folder, tmp_path / "o")
+    for k in range(parts):
+        bag = write_recording(tmp_path / f"run_{k}.bag", "bag", n=n,
+                              stamps=[T0 + (k * n + i) * 50_000_000 for i in range(n)])
+        data = bag.read_bytes()
+        (folder / bag.name).write_bytes(data[:len(data) // 2] if k == cut else data)
+    return folder
+
+
+def test_a_split_bag_folder_with_a_cut_last_part_keeps_the_earlier_parts(
+        tmp_path: Path) -> None:
+    o = analyze(_split_bags(tmp_path, 2, cut=1), tmp_path / "o")
     assert o.code == 2 and o.rows >= 8
     assert "run_1.bag" in (one_error_line(o.err) or "")
-
 
 
 def test_a_damaged_middle_part_costs_only_its_own_messages(tmp_path: Path) -> None:
     """Three split ROS 1 parts, the middle one cut in half: the parts before and after it are
     analysed, the error line names the middle part and says reading went on."""
-    folder = tmp_path / "split"
-    folder.mkdir()
-    write_recording(folder / "run_0.bag", "bag", n=8)
-    mid = write_recording(tmp_path / "run_1.bag", "bag", n=8,
-                          stamps=[T0 + (8 + i) * 50_000_000 for i in range(8)])
-    (folder / "run_1.bag").write_bytes(mid.read_bytes()[:len(mid.read_bytes()) // 2])
-    write_recording(folder / "run_2.bag", "bag", n=8,
-                    stamps=[T0 + (16 + i) * 50_000_000 for i in range(8)])
-    o = analyze(folder, tmp_path / "o")
+    o = analyze(_split_bags(tmp_path, 3, cut=1), tmp_path / "o")
     line = one_error_line(o.err) or ""
     assert o.code == 2 and "run_1.bag" in line and "reading went on with the 1 part(s)" in line
     assert "frames, before it and in the parts after it, were analysed" in o.err
@@ -161,6 +159,7 @@ def test_a_damaged_middle_part_costs_only_its_own_messages(tmp_path: Path) -> No
     assert {T0 + i * 50_000_000 for i in range(8)} <= stamps  # the first part, whole
     assert {T0 + (16 + i) * 50_000_000 for i in range(8)} <= stamps  # the last part, whole
     assert len(stamps) < 24  # the cut part lost its tail
+
 
 def _mcap_records(data: bytes) -> list[tuple[int, int, int]]:
     """(offset, opcode, length) of the top-level records of an MCAP file."""
