@@ -454,7 +454,11 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
     out = StreamRun(rows, cam_stream, lid_stream)
     rec_start = rec.start_ns or 0
     s, e = time_window(rec, opts)
-    tf_odom = TfOdometry() if choice.tf and lid_front is not None else None
+    # the transforms: the prior itself where no odometry topic is (choice.tf), and where the
+    # LiDAR sits in the odometry's frame where one is (choice.tf_static)
+    tf_odom = TfOdometry() if lid_front is not None and (
+        choice.tf or (choice.odometry and choice.tf_static)) else None
+    mount = _Mount()  # the odometry topic's child frame and the LiDAR's, once known
     tf_topics = (choice.tf, choice.tf_static) if tf_odom is not None else ()
     read_topics = [t for t in (choice.camera, choice.lidar, choice.odometry, *tf_topics) if t]
     for stream in (cam_stream, lid_stream):
@@ -506,6 +510,7 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
                     try:
                         msg = rec.deserialize(raw)
                         lid_front.add_odometry(header_stamp_ns(msg), odometry_pose(msg))
+                        mount.child = mount.child or str(getattr(msg, "child_frame_id", ""))
                     except Exception as exc:
                         log.debug("odometry message skipped: %s", exc)
                     release(raw.log_ns)
@@ -574,10 +579,12 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
                         continue
                     if lid_stream.repeats_scan(scan):
                         continue
-                    if tf_odom is not None and not tf_odom.resolved and scan.frame_id \
-                            and tf_odom.resolve(scan.frame_id):
+                    if tf_odom is not None and choice.tf and not tf_odom.resolved \
+                            and scan.frame_id and tf_odom.resolve(scan.frame_id):
                         tf_poses()
-                    if choice.odometry or tf_odom is not None:
+                    if tf_odom is not None and choice.odometry and mount.pending():
+                        mount.place(tf_odom, scan.frame_id, lid_front)
+                    if choice.odometry or (tf_odom is not None and choice.tf):
                         pending.append(scan)
                         release(raw.log_ns)
                     else:
@@ -596,7 +603,8 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
         if not out.interrupted:
             release(None)  # the scans still waiting for odometry that will not come
         if tf_odom is not None and lid_stream is not None:
-            lid_stream.stats.prior_note = tf_prior_note(choice, tf_odom)
+            lid_stream.stats.prior_note = (tf_prior_note(choice, tf_odom) if choice.tf
+                                           else mount.note(choice))
         if cam_stream is not None and conv is not None:
             cam_stream.stats.conversion = conv.mono16
         if cam_front is not None and cam_stream is not None:
@@ -605,6 +613,41 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
             cam_front.finish()  # the end of the frames read closes the open interval
             complete()
     return out
+
+
+@dataclass
+class _Mount:
+    """Where the LiDAR sits in the frame an odometry topic's poses are of (its messages'
+    ``child_frame_id``), from /tf_static: placed once, at the first scan after both frames are
+    known, before any scan is registered with the prior."""
+
+    child: str = ""
+    lidar: str = ""
+    T: np.ndarray | None = None
+    tried: bool = False
+
+    def pending(self) -> bool:
+        return not self.tried
+
+    def place(self, tree: TfOdometry, lidar_frame: str, front: Any) -> None:
+        if not (self.child and lidar_frame):
+            return  # asked again at the next scan
+        self.tried, self.lidar = True, lidar_frame
+        self.T = tree.static_chain(lidar_frame, self.child)
+        if self.T is not None:
+            front.set_mount(self.T)
+
+    def note(self, choice: TopicChoice) -> str | None:
+        if not self.tried:
+            return None
+        if self.T is None:
+            return (f"{choice.tf_static} does not join the LiDAR's frame {self.lidar} to "
+                    f"{self.child}, the frame {choice.odometry} gives poses of: its motion is "
+                    "used as the LiDAR's")
+        if np.allclose(self.T, np.eye(4)):
+            return None
+        return (f"{choice.odometry} gives poses of {self.child}; {choice.tf_static} places the "
+                f"LiDAR ({self.lidar}) in it, so the prior is the LiDAR's own motion")
 
 
 def tf_prior_note(choice: TopicChoice, tf_odom: TfOdometry) -> str:

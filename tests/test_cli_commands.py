@@ -263,12 +263,15 @@ def _mcap_without(src: Path, dst: Path, *drop: str) -> Path:
 def test_without_an_odometry_topic_the_prior_comes_from_tf(tmp_path: Path) -> None:
     """A recording that kept /tf and /tf_static but not /odom: the LiDAR's prior is the
     odometry frame's transform on /tf chained to the LiDAR's frame by /tf_static (odom →
-    base_link → lidar), and the manifest says so; the same LiDAR rows as with /odom on this
-    straight drive. Without /tf_static nothing joins base_link to the LiDAR's frame: a
+    base_link → lidar), and the manifest says so; the same LiDAR rows as with /odom (placed at
+    the LiDAR by /tf_static too) on this straight drive. Without /tf_static nothing joins base_link to the LiDAR's frame: a
     constant-velocity prior, and the note names what /tf held."""
     sample = Path(__file__).resolve().parents[1] / "sample_logs" / "dock_corridor.mcap"
     kw = {"no_camera": True, "max_frames": 8, "no_rules": True}
     ref = frontdiag.analyze(sample, **kw)
+    # with /odom, /tf_static still says where the LiDAR sits on the base the odometry is of
+    assert ("/lidar/points: /odom gives poses of base_link; /tf_static places the LiDAR "
+            "(lidar) in it, so the prior is the LiDAR's own motion") in ref.manifest["notes"]
     tf = frontdiag.analyze(_mcap_without(sample, tmp_path / "tf.mcap", "/odom"), **kw)
     assert tf.manifest["topics"]["odometry"] is None
     assert list(tf.table["lidar_prior"]) == list(ref.table["lidar_prior"])

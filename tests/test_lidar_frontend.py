@@ -277,3 +277,26 @@ def test_reset_starts_a_new_map_in_the_new_place() -> None:
     assert after[0]["status"] == "first_scan"
     assert [r["status"] for r in after[1:]] == ["ok"] * 3
     assert min(r["lidar_cond"] for r in after[1:]) > 900
+
+
+def test_a_mounted_sensors_prior_is_its_own_motion_not_the_bases() -> None:
+    """Odometry gives the base's poses; with the sensor mounted off the base's origin and
+    turned (X = base ← sensor), the prior is X⁻¹ Δ X: a turn of the base on the spot moves a
+    sensor 1 m ahead of it sideways, which the base's own Δ does not."""
+    fe = LidarFrontend()
+    yaw = np.array([0.0, 0.0, 0.3, 0.0, 0.0, 0.0])  # rotation first, then translation
+    for k in range(3):  # the base turns on the spot, 0.3 rad a step
+        fe.add_odometry(T0 + k * PERIOD_NS, se3_exp(yaw * k))
+    fe._poses = [(T0, np.eye(4))]
+    base_delta, _, src = fe._prior(T0 + PERIOD_NS)
+    assert src == "odometry" and np.linalg.norm(base_delta[:3, 3]) < 1e-12
+    X = np.eye(4)  # 1 m ahead of the base, turned 0.2 rad about its vertical
+    X[:3, :3] = se3_exp(np.array([0.0, 0.0, 0.2, 0.0, 0.0, 0.0]))[:3, :3]
+    X[0, 3] = 1.0
+    fe.set_mount(X)
+    delta, twist, src = fe._prior(T0 + PERIOD_NS)
+    assert src == "odometry"
+    np.testing.assert_allclose(delta, inv(X) @ base_delta @ X, atol=1e-12)
+    assert twist[2] == pytest.approx(3.0)  # the yaw rate is the base's: 0.3 rad in 0.1 s
+    # the sensor 1 m ahead swings through a chord of 2 sin(0.15) m
+    assert np.linalg.norm(delta[:3, 3]) == pytest.approx(2 * np.sin(0.15), rel=1e-9)

@@ -107,6 +107,20 @@ class TfOdometry:
             path.append(s)
         return False
 
+    def static_chain(self, sensor_frame: str, base_frame: str) -> np.ndarray | None:
+        """``base ← sensor`` composed from the static transforms along the frames between them
+        (the identity when they are one frame); None when the static tree does not join them."""
+        s, base = frame(sensor_frame), frame(base_frame)
+        T = np.eye(4)
+        for _ in range(32):
+            if s == base:
+                return T
+            up = self.static.get(s)
+            if up is None:
+                return None
+            s, T = up[0], up[1] @ T
+        return None
+
     def poses(self) -> list[tuple[int, np.ndarray]]:
         """The sensor's poses in the odometry frame not handed out yet, in time order."""
         if self.base is None or self.T_base_sensor is None:

@@ -42,6 +42,7 @@ class TopicChoice:
     tf: str | None = None
     """``/tf``, read for the LiDAR's motion prior where no odometry topic is (io/tf.py)."""
     tf_static: str | None = None
+    """``/tf_static``, read for where the LiDAR sits in the odometry's frame (io/tf.py)."""
 
     @property
     def topics(self) -> list[str]:
@@ -134,13 +135,14 @@ def choose_topics(topics: list[TopicInfo], *, camera_topic: str | None = None,
                 notes.append("several odometry topics; LiDAR uses a constant-velocity prior "
                              "(pass --odom-topic to use one)")
     tf = tf_static = None
-    if lid is not None and odom is None and odom_topic is None:
+    if lid is not None:
         tfs = candidates(topics, TF_TYPES)
-        dyn = [t for t in tfs if not t.topic.rstrip("/").endswith("tf_static")]
-        tf = next((t.topic for t in dyn if t.topic.strip("/") == "tf"),
-                  dyn[0].topic if len(dyn) == 1 else None)
-        if tf is not None:
-            tf_static = next((t.topic for t in tfs if t.topic.strip("/") == "tf_static"), None)
+        # where the LiDAR sits on the robot, for either kind of odometry
+        tf_static = next((t.topic for t in tfs if t.topic.strip("/") == "tf_static"), None)
+        if odom is None and odom_topic is None:
+            dyn = [t for t in tfs if not t.topic.rstrip("/").endswith("tf_static")]
+            tf = next((t.topic for t in dyn if t.topic.strip("/") == "tf"),
+                      dyn[0].topic if len(dyn) == 1 else None)
     if cam is None and lid is None:
         if depth and use_lidar:
             raise TopicError("no usable sensor topics: the only images are depth images ("

@@ -88,6 +88,7 @@ class LidarFrontend:
         self._first_raw: tuple[np.ndarray, np.ndarray] | None = None
         self._odom_t: list[int] = []
         self._odom_T: list[np.ndarray] = []
+        self._mount: np.ndarray | None = None  # odometry's child frame <- sensor
         self._sse = 0.0
         self._n_dev = 0
 
@@ -110,6 +111,12 @@ class LidarFrontend:
             return
         self._odom_t.append(int(t_ns))
         self._odom_T.append(T)
+
+    def set_mount(self, T: np.ndarray) -> None:
+        """Where the sensor sits in the frame the odometry poses are of (``base ← sensor``, e.g.
+        from ``/tf_static``): the prior is then the sensor's own motion, ``X⁻¹ Δ X``, not the
+        base's. Applies to every odometry pose, before and after the call."""
+        self._mount = np.asarray(T, dtype=np.float64).reshape(4, 4)
 
     def odometry_covers(self, t_ns: int) -> bool:
         """True when odometry up to ``t_ns`` has been added (the prior interpolates, it never
@@ -147,6 +154,8 @@ class LidarFrontend:
             b = interpolate_pose(t_ns, stamps, np.asarray(self._odom_T))
             if a is not None and b is not None:
                 delta = inv(a) @ b
+                if self._mount is not None:
+                    delta = inv(self._mount) @ delta @ self._mount
                 return delta, se3_log(delta) / dt, "odometry"
         if len(self._poses) >= 2 and dt > 0:
             (t0, T0), (t1, T1) = self._poses[-2], self._poses[-1]
