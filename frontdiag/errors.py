@@ -94,15 +94,8 @@ class RuleError(FrontdiagError):
 class OutputError(FrontdiagError):
     """An output location (--out, --junit, ...) cannot be written, or would overwrite an input."""
 
-    resumed = False
-    """Damage met while streaming after which reading went on (a split recording's later
-    parts): frames after the damage were analysed too."""
-
-    def __init__(self, path: Path | str, problem: str, *, hint: str | None = None,
-                 resumed: bool = False) -> None:
+    def __init__(self, path: Path | str, problem: str, *, hint: str | None = None) -> None:
         self.path = Path(path)
-        if resumed:
-            self.resumed = True
         super().__init__(f"{path}: {problem}", hint=hint)
 
 

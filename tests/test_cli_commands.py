@@ -319,10 +319,12 @@ def test_tf_odometry_chains_the_sensor_frame_through_the_static_tree() -> None:
     tf.add(N(transforms=[_tf("/base_link", "mount", 0, (0.5, 0.0, 0.3), 0.2),
                          _tf("mount", "lidar", 0, (0.0, 0.1, 0.0), -0.5)]), static=True)
     tf.add(N(transforms=[_tf("map", "odom", 1_000, (9.0, 9.0, 0.0), 1.0),
-                         _tf("odom", "base_link", 1_000, (1.0, 2.0, 0.0), 0.3)]), static=False)
+                         _tf("odom", "base_link", 1_000, (1.0, 2.0, 0.0), 0.3),
+                         _tf("odom", "caster", 1_000, (1.0, 2.0, 0.0), 0.3)]), static=False)
     assert tf.poses() == [] and not tf.resolved
     assert not tf.resolve("camera")  # no static path from it
     assert tf.resolve("/lidar") and tf.describe() == "odom → base_link → mount → lidar"
+    assert "odom" not in tf.dynamic and len(tf.dynamic["caster"]) == 0  # map → odom is not odometry
     tf.add(N(transforms=[_tf("odom", "base_link", 2_000, (1.5, 2.0, 0.0), 0.4),
                          _tf("odom", "base_link", 1_500, (0.0, 0.0, 0.0), 0.0)]), static=False)
     got = tf.poses()
@@ -331,6 +333,8 @@ def test_tf_odometry_chains_the_sensor_frame_through_the_static_tree() -> None:
     for (_, P), base in zip(got, (T((1.0, 2.0, 0.0), 0.3), T((1.5, 2.0, 0.0), 0.4)),
                             strict=True):
         np.testing.assert_allclose(P, base @ X, atol=1e-12)
-    assert tf.poses() == []
-    tf.add(N(transforms=[_tf("odom", "base_link", 3_000, (2.0, 2.0, 0.0), 0.5)]), static=False)
+    assert tf.poses() == [] and len(tf.dynamic["base_link"]) == 0  # handed out, not kept
+    tf.add(N(transforms=[_tf("odom", "base_link", 3_000, (2.0, 2.0, 0.0), 0.5),
+                         _tf("odom", "wheel", 3_000, (0.0, 0.0, 0.0))]), static=False)
     assert [t for t, _ in tf.poses()] == [3_000]
+    assert "wheel" not in tf.dynamic  # once chained, only the chained frame is followed

@@ -10,13 +10,15 @@ robot on ``/tf_static``. Many recordings keep those and drop the ``Odometry`` to
 
 where ``X`` is the frame whose transform from an odometry frame ``/tf`` carries (usually
 ``base_link`` or ``base_footprint``) and ``T_X_lidar`` is composed from ``/tf_static`` along the
-frames between them. The prior is then the motion of the LiDAR itself, lever arm included (an
-``Odometry`` topic gives the base's).
+frames between them. The prior is then the motion of the LiDAR itself, lever arm included.
+Where an ``Odometry`` topic is recorded, ``/tf_static`` alone places the LiDAR in the frame its
+poses are of (:meth:`TfOdometry.static_chain`, used by ``LidarFrontend.set_mount``).
 
 Only transforms whose parent is an odometry frame are kept from ``/tf`` (a frame named ``odom``,
-or ending in ``/odom`` or ``_odom``), at most :data:`MAX_POSES` of them a child, so memory stays
-bounded however long the recording; the map → odom transform of a localiser jumps at every
-correction and is not odometry.
+or ending in ``/odom`` or ``_odom``): until the LiDAR's frame is chained (its first scan), at
+most :data:`MAX_POSES` a child for :data:`MAX_FRAMES` children; after, only the chained child's,
+each handed to the prior once and dropped. Memory stays bounded however long the recording.
+The map → odom transform of a localiser jumps at every correction and is not odometry.
 """
 
 from __future__ import annotations
@@ -29,8 +31,8 @@ import numpy as np
 from frontdiag.io.decode import pose_matrix, stamp_ns
 
 TF_TYPES = ("tf2_msgs/msg/TFMessage", "tf/msg/tfMessage")
-MAX_POSES = 200_000  # per child frame: 30 min at 100 Hz
-MAX_FRAMES = 64  # child frames of an odometry frame followed before one is chosen
+MAX_POSES = 100_000  # per child frame, until the LiDAR's frame is chained: 17 min at 100 Hz
+MAX_FRAMES = 8  # child frames of an odometry frame followed until one is chained
 
 
 def frame(name: str) -> str:
@@ -56,11 +58,10 @@ class TfOdometry:
         self.static: dict[str, tuple[str, np.ndarray]] = {}  # child -> (parent, T_parent_child)
         self.dynamic: dict[str, deque[tuple[int, np.ndarray]]] = {}  # child of an odom frame
         self.parent: dict[str, str] = {}  # the odometry frame of each such child
-        self.count: dict[str, int] = {}  # poses ever appended a child (the deque is bounded)
+        self.last_t: dict[str, int] = {}  # the latest stamp of each such child
         self.base: str | None = None  # X: the child chained to the sensor
         self.T_base_sensor: np.ndarray | None = None
         self.chain: list[str] = []  # sensor frame up to X, for the notes
-        self._sent = 0  # poses of X already handed out
 
     def add(self, msg: Any, static: bool, log_ns: int = 0) -> None:
         """One ``TFMessage``: every transform in it (a transform unstamped takes ``log_ns``)."""
@@ -71,18 +72,17 @@ class TfOdometry:
             T = transform_matrix(tr.transform)
             if static:
                 self.static[child] = (parent, T)
-            elif is_odometry_frame(parent):
+            elif is_odometry_frame(parent) and (self.base is None or child == self.base):
                 poses = self.dynamic.get(child)
                 if poses is None:
                     if len(self.dynamic) >= MAX_FRAMES:
                         continue
                     poses = self.dynamic[child] = deque(maxlen=MAX_POSES)
                     self.parent[child] = parent
-                    self.count[child] = 0
                 t = stamp_ns(tr, log_ns)
-                if t > 0 and (not poses or t > poses[-1][0]):
+                if t > self.last_t.get(child, 0):
                     poses.append((t, T))
-                    self.count[child] += 1
+                    self.last_t[child] = t
 
     @property
     def resolved(self) -> bool:
@@ -99,6 +99,9 @@ class TfOdometry:
         for _ in range(32):  # a tree deeper than this is a loop in the static transforms
             if s in self.dynamic:
                 self.base, self.T_base_sensor, self.chain = s, T, path
+                for other in self.dynamic:  # only the chained frame is followed from here
+                    if other != s:
+                        self.dynamic[other].clear()
                 return True
             up = self.static.get(s)
             if up is None:
@@ -122,15 +125,14 @@ class TfOdometry:
         return None
 
     def poses(self) -> list[tuple[int, np.ndarray]]:
-        """The sensor's poses in the odometry frame not handed out yet, in time order."""
+        """The sensor's poses in the odometry frame not handed out yet, in time order (handed
+        out once: nothing is kept after)."""
         if self.base is None or self.T_base_sensor is None:
             return []
         q = self.dynamic[self.base]
-        total = self.count[self.base]
-        fresh = min(total - self._sent, len(q))  # the deque may have forgotten the oldest
-        self._sent = total
-        new = [q[i] for i in range(len(q) - fresh, len(q))]
-        return [(t, T @ self.T_base_sensor) for t, T in new]
+        new = [(t, T @ self.T_base_sensor) for t, T in q]
+        q.clear()
+        return new
 
     def describe(self) -> str:
         """The chain for the notes: ``odom → base_link → … → lidar``."""
