@@ -145,7 +145,8 @@ def _audit(graph: PoseGraph, rules: LoopRules | None, *, odom_max_gap: int, veri
     r2 = rules.by_statistic("pcm")
     r5 = rules.optional("stiffness")
     over = find_overconfident(graph, float(r5.param("max_over_median"))) if r5 else None
-    capped = bool(over is not None and len(over) and r5 is not None and r5.param("cap"))
+    capped = bool(over is not None and len(over) and r5 is not None
+                  and (r5.param("cap") if "cap" in r5.params else True))
     file_graph = graph
     if capped and over is not None:
         graph = cap_information(graph, over)
