@@ -990,6 +990,10 @@ def test_an_overconfident_edge_is_named_capped_and_the_others_untouched(tmp_path
     assert rows["stiffest"][0] | {"sigma": 0, "over_median": 0} == {
         "edge_line": 11, "i": 10, "j": 11, "odometry": True, "axis": "x", "sigma": 0,
         "over_median": 0}
+    assert main(["loops", str(path), "--fail-on", "never"]) == 0
+    console = capsys.readouterr().out
+    assert "FD-LOP-005 note     1  odometry edge(s) claim an impossible certainty" in console
+    assert "FD-LOP-005 warn     1  edge claims a certainty no sensor has" in console
     assert main(["loops", str(path), "--explain", str(int(row["loop"]))]) == 0
     assert "(its information capped at FD-LOP-005's line" in capsys.readouterr().out
     assert main(["loops", str(path), "--explain", "0"]) == 0

@@ -80,6 +80,12 @@ def render_loops(console: Console, result: LoopAudit, summ: dict[str, Any], gate
         if n:
             console.print(f"  {r.id} [{_STYLE[r.severity]}]{r.severity}[/] {n:>5}  "
                           f"{escape(r.title)}", highlight=False)
+    over = summ.get("overconfident_edges") or {}
+    if over.get("odometry"):  # not loops, so in no verdict count above: said here
+        console.print(f"  {result.rules.by_statistic('stiffness').id} [yellow]note[/] "
+                      f"{over['odometry']:>5}  odometry edge(s) claim an impossible certainty"
+                      + (" (capped for the audit; see the note below)" if over["capped"]
+                         else " (see the note below)"), highlight=False)
     worst = summ["worst"]
     if worst:
         t = Table(title=f"loops that would move the map most if believed ({len(worst)} shown)",
