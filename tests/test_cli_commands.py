@@ -338,3 +338,37 @@ def test_tf_odometry_chains_the_sensor_frame_through_the_static_tree() -> None:
                          _tf("odom", "wheel", 3_000, (0.0, 0.0, 0.0))]), static=False)
     assert [t for t, _ in tf.poses()] == [3_000]
     assert "wheel" not in tf.dynamic  # once chained, only the chained frame is followed
+
+
+EVO_TF = Path(__file__).resolve().parents[2] / "shared" / "data" / "rosbags_evo"
+
+
+@pytest.mark.parametrize("name", ["tf_example.bag", "tf_example"])
+def test_tf_odometry_on_a_real_robots_transforms(name: str) -> None:
+    """evo's recorded /tf (ROS 1 bag and ROS 2 folder): odom → base_footprint at 10 Hz on /tf,
+    base_footprint → base_link on /tf_static. A sensor on base_link chains to the odometry
+    through the static transform, and every recorded pose reaches the prior, in time order."""
+    import numpy as np
+
+    from frontdiag.io.readers import open_recording
+    from frontdiag.io.tf import TfOdometry, transform_matrix
+
+    path = EVO_TF / name
+    if not path.exists():
+        pytest.skip("../shared/data/rosbags_evo absent")
+    tf = TfOdometry()
+    base = []
+    with open_recording(path) as rec:
+        for raw in rec.messages(["/tf", "/tf_static"]):
+            msg = rec.deserialize(raw)
+            tf.add(msg, raw.topic == "/tf_static", raw.log_ns)
+            if raw.topic == "/tf":
+                base += [transform_matrix(tr.transform) for tr in msg.transforms]
+    assert tf.resolve("base_link") and tf.describe() == "odom → base_footprint → base_link"
+    poses = tf.poses()
+    assert len(poses) == len(base) == 517
+    stamps = [t for t, _ in poses]
+    assert stamps == sorted(stamps) and len(set(stamps)) == 517
+    mount = tf.static["base_link"][1]
+    for (_, P), B in zip(poses[::50], base[::50], strict=True):
+        np.testing.assert_allclose(P, B @ mount, atol=1e-12)
