@@ -149,6 +149,14 @@ def test_split_ros2_parts_without_metadata_read_as_one_recording(tmp_path: Path,
         assert rec.fault is not None and rec.fault.resumed
         assert middle.name in rec.fault.message and "after it" in rec.fault.message
     middle.write_bytes(whole)
+    first = sorted(folder.iterdir())[0]
+    whole = first.read_bytes()
+    first.write_bytes(whole[:300])  # the first part too: the later parts are still read
+    with open_recording(folder) as rec:
+        got = list(rec.messages(["/cam/image_raw"]))
+        assert [m.log_ns for m in got] == [T0 + i * DT for i in range(5, 12)]
+        assert rec.fault is not None and rec.fault.resumed and first.name in rec.fault.message
+    first.write_bytes(whole)
     last = sorted(folder.iterdir())[-1]
     last.write_bytes(last.read_bytes()[:300])
     with open_recording(folder) as rec:

@@ -805,13 +805,15 @@ def _parts(files: Sequence[Path], open_part: Callable[[Path], Recording]) -> lis
     """The parts of a split recording opened in order; one that cannot be opened stands in the
     chain as its damage (no messages), and the parts after it are read."""
     out: list[Recording] = []
+    first: RecordingError | None = None
     for f in files:
         try:
             out.append(open_part(f))
         except RecordingError as exc:
-            if not out:  # nothing before it: the recording cannot be read
-                raise
-            out.append(_Unreadable(f, exc, out[-1].end_ns))
+            first = first or exc
+            out.append(_Unreadable(f, exc, out[-1].end_ns if out else None))
+    if all(isinstance(p, _Unreadable) for p in out) and first is not None:
+        raise first  # no part can be opened: the recording cannot be read
     return out
 
 
