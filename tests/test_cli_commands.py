@@ -372,3 +372,15 @@ def test_tf_odometry_on_a_real_robots_transforms(name: str) -> None:
     mount = tf.static["base_link"][1]
     for (_, P), B in zip(poses[::50], base[::50], strict=True):
         np.testing.assert_allclose(P, B @ mount, atol=1e-12)
+
+
+def test_info_says_where_the_lidar_prior_will_come_from(tmp_path: Path, capsys) -> None:
+    """`info` names the odometry topic and /tf_static, or /tf where no odometry topic is."""
+    sample = Path(__file__).resolve().parents[1] / "sample_logs" / "dock_corridor.mcap"
+    code, out, _ = run(["info", str(sample)], capsys)
+    assert code == 0 and ("odometry /odom, placed at the LiDAR by /tf_static where it joins "
+                          "their frames") in " ".join(out.split())
+    code, out, _ = run(["info", str(_mcap_without(sample, tmp_path / "tf.mcap", "/odom"))],
+                       capsys)
+    assert code == 0 and ("odometry from /tf (an odometry frame chained to the LiDAR's frame, "
+                          "if one is)") in " ".join(out.split())

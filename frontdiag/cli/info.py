@@ -69,7 +69,9 @@ def info_cmd(
                   + escape(f"camera {c.camera or '—'} (CameraInfo {c.camera_info or '—'}), "
                            f"LiDAR {c.lidar or '—'}, odometry "
                            + (c.odometry or (f"from {c.tf} (an odometry frame chained to the "
-                                             "LiDAR's frame, if one is)" if c.tf else "—"))),
+                                             "LiDAR's frame, if one is)" if c.tf else "—"))
+                           + (f", placed at the LiDAR by {c.tf_static} where it joins their "
+                              "frames" if c.odometry and c.tf_static else "")),
                   highlight=False)
     else:
         con.print(f"[bold]analyze cannot start on its own[/]: {escape(str(rep.choice_error))}",
