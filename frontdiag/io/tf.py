@@ -24,6 +24,7 @@ The map → odom transform of a localiser jumps at every correction and is not o
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
@@ -88,41 +89,39 @@ class TfOdometry:
     def resolved(self) -> bool:
         return self.base is not None
 
+    def _up(self, sensor_frame: str) -> Iterator[tuple[str, np.ndarray, list[str]]]:
+        """Up the static tree from ``sensor_frame``: each frame reached, ``frame ← sensor``
+        composed so far, and the frames passed (at most 32: deeper is a loop in the tree)."""
+        s = frame(sensor_frame)
+        T = np.eye(4)
+        path = [s]
+        for _ in range(32):
+            yield s, T, path
+            up = self.static.get(s)
+            if up is None:
+                return
+            s, T = up[0], up[1] @ T
+            path = [*path, s]
+
     def resolve(self, sensor_frame: str) -> bool:
         """Chain ``sensor_frame`` to a child of an odometry frame through static transforms
         (the sensor frame itself may be that child); whether it could."""
         if self.base is not None:
             return True
-        s = frame(sensor_frame)
-        T = np.eye(4)
-        path = [s]
-        for _ in range(32):  # a tree deeper than this is a loop in the static transforms
+        for s, T, path in self._up(sensor_frame):
             if s in self.dynamic:
                 self.base, self.T_base_sensor, self.chain = s, T, path
                 for other in self.dynamic:  # only the chained frame is followed from here
                     if other != s:
                         self.dynamic[other].clear()
                 return True
-            up = self.static.get(s)
-            if up is None:
-                return False
-            s, T = up[0], up[1] @ T
-            path.append(s)
         return False
 
     def static_chain(self, sensor_frame: str, base_frame: str) -> np.ndarray | None:
         """``base ← sensor`` composed from the static transforms along the frames between them
         (the identity when they are one frame); None when the static tree does not join them."""
-        s, base = frame(sensor_frame), frame(base_frame)
-        T = np.eye(4)
-        for _ in range(32):
-            if s == base:
-                return T
-            up = self.static.get(s)
-            if up is None:
-                return None
-            s, T = up[0], up[1] @ T
-        return None
+        base = frame(base_frame)
+        return next((T for s, T, _ in self._up(sensor_frame) if s == base), None)
 
     def poses(self) -> list[tuple[int, np.ndarray]]:
         """The sensor's poses in the odometry frame not handed out yet, in time order (handed

@@ -82,10 +82,8 @@ def _overconfident_rows(result: LoopAudit, top: int) -> dict[str, Any]:
     rows = []
     for e, a, s, r in zip(over.edges[:top].tolist(), over.axis[:top].tolist(),
                           over.sigma[:top].tolist(), over.ratio[:top].tolist(), strict=True):
-        ends = [int(g.ids[g.src[e]]), int(g.ids[g.dst[e]])]
-        if g.flipped[e]:  # as the file writes it
-            ends.reverse()
-        rows.append({"edge_line": int(g.line[e]), "i": ends[0], "j": ends[1],
+        i, j = g.file_ends(e)
+        rows.append({"edge_line": int(g.line[e]), "i": i, "j": j,
                      "odometry": bool(result.odometry[e]), "axis": names[int(a)],
                      "sigma": float(s), "over_median": float(r)})
     return {"checked": True, "max_over_median": over.max_over_median,

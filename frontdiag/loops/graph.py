@@ -94,10 +94,14 @@ class PoseGraph:
             first |= gap <= max_gap
         return first
 
-    def edge_name(self, e: int) -> str:
+    def file_ends(self, e: int) -> tuple[int, int]:
+        """Edge ``e``'s vertex ids in the order the file writes them (edges are stored
+        forward)."""
         a, b = int(self.ids[self.src[e]]), int(self.ids[self.dst[e]])
-        if self.flipped[e]:
-            a, b = b, a
+        return (b, a) if self.flipped[e] else (a, b)
+
+    def edge_name(self, e: int) -> str:
+        a, b = self.file_ends(e)
         return f"{self.path}:{int(self.line[e])}: edge {a}->{b}"
 
 
