@@ -34,7 +34,13 @@ from frontdiag.io.camera_info import (
 )
 from frontdiag.io.decode import header_stamp_ns, odometry_pose
 from frontdiag.io.images import is_video_message
-from frontdiag.io.readers import Recording, damage_hint, open_recording, recording_size
+from frontdiag.io.readers import (
+    Recording,
+    damage_hint,
+    open_recording,
+    recording_size,
+    without_path,
+)
 from frontdiag.io.topics import TopicChoice, choose_topics
 from frontdiag.metrics import CAMERA_COLUMNS, LIDAR_COLUMNS
 from frontdiag.records import GAP_STATUS, SIZE_STATUS, Intrinsics
@@ -303,7 +309,7 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
                                    use_camera=opts.use_camera, use_lidar=opts.use_lidar)
         except TopicError:
             if rec.fault is not None:  # the damage hid the topics: say so, not "no topics"
-                raise RecordingError(path, _problem(path, rec.fault.message)) from None
+                raise RecordingError(path, without_path(rec.fault.message, path)) from None
             raise
         notes.extend(choice.notes)
         if choice.camera and opts.downscale > 1:
@@ -383,7 +389,7 @@ def _stream_notes(path: Path, rec: Recording, run: StreamRun,
     the notes its counts call for."""
     fault = run.fault
     if rec.fault is not None and fault is None:
-        fault = RecordingError(path, _problem(path, rec.fault.message),
+        fault = RecordingError(path, without_path(rec.fault.message, path),
                                hint=damage_hint(rec.fault),
                                resumed=rec.fault.resumed)
     for stream in (run.cam, run.lid):
@@ -429,14 +435,6 @@ def _stream_notes(path: Path, rec: Recording, run: StreamRun,
                          f"time(s), and the frontend started afresh at each (rows with status "
                          f"{SIZE_STATUS}): {shown}{more}")
     return fault
-
-
-def _problem(path: Path, message: str) -> str:
-    """A reader's fault message without the leading path (the error adds it back)."""
-    for prefix in (f"{path}: ", f"{path}/"):  # the recording, or a file inside its folder
-        if message.startswith(prefix):
-            return message[len(prefix):]
-    return message
 
 
 NO_RESULT = ("too_few_points",)

@@ -32,7 +32,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from frontdiag.io.readers import Recording, damage_hint, open_recording
+from frontdiag.io.readers import Recording, damage_hint, open_recording, without_path
 from frontdiag.io.topics import TopicChoice
 from frontdiag.records import Intrinsics
 from frontdiag.runner import (
@@ -193,7 +193,7 @@ def reader_fault(path: Path, rec: Recording, run: StreamRun) -> None:
     from frontdiag.errors import RecordingError
 
     if rec.fault is not None and run.fault is None:
-        run.fault = RecordingError(path, rec.fault.message.split(": ", 1)[-1],
+        run.fault = RecordingError(path, without_path(rec.fault.message, path),
                                    hint=damage_hint(rec.fault), resumed=rec.fault.resumed)
 
 

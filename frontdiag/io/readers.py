@@ -299,7 +299,7 @@ class ChainedRecording(_Base):
                 n += 1
                 yield RawMessage(raw.topic, raw.msgtype, raw.log_ns, raw.data, (part, raw))
             if part.fault is not None and self.fault is None:
-                inner = part.fault.message.removeprefix(f"{part.path}: ")
+                inner = without_path(part.fault.message, part.path)
                 _, sep, reason = inner.partition(" messages (")
                 reason = reason[:-1] if sep and reason.endswith(")") else inner
                 after = len(self.parts) - 1 - k
@@ -782,7 +782,8 @@ class _Unreadable(_Base):
 
     def __init__(self, path: Path, exc: RecordingError, at_ns: int | None) -> None:
         self.path = path
-        self.fault = ReadFault(f"{path}: damaged after 0 messages ({_problem_of(exc, path)})", 0)
+        self.fault = ReadFault(f"{path}: damaged after 0 messages "
+                               f"({without_path(str(exc), path)})", 0)
         self._start = self._end = at_ns
 
     @property
@@ -797,8 +798,13 @@ class _Unreadable(_Base):
         raise ValueError(f"{self.path}: nothing to deserialise")
 
 
-def _problem_of(exc: RecordingError, path: Path) -> str:
-    return str(exc).removeprefix(f"{path}: ")
+def without_path(message: str, path: Path) -> str:
+    """A fault message without its leading ``path`` (an error that names the file adds it
+    back); a file inside a recording folder keeps its own name."""
+    for prefix in (f"{path}: ", f"{path}/"):  # the recording, or a file inside its folder
+        if message.startswith(prefix):
+            return message[len(prefix):]
+    return message
 
 
 def _parts(files: Sequence[Path], open_part: Callable[[Path], Recording]) -> list[Recording]:
