@@ -52,6 +52,7 @@ from frontdiag.runner import (
     TopicStats,
     and_last,
     iter_camera_frames,
+    own_calibrations,
     run_stream,
 )
 from frontdiag.versions import versions
@@ -175,21 +176,16 @@ def calibration_for_images(rec: Recording, choice: TopicChoice, opts: AnalysisOp
     if intr is None or intr.width <= 0 or intr.height <= 0:
         return intr
     size = first_image_size(rec, choice, opts.downscale)
-    if size is not None and (intr.width, intr.height) != size and choice.camera_info \
-            and not opts.intrinsics and not opts.camera_info_file:
-        from frontdiag.io.camera_info import CalibrationsBySize
-
-        # within the messages resolve_intrinsics reads: a resize node that passes the
-        # full-size CameraInfo on has none for the images, and its whole topic is not read
-        own = CalibrationsBySize(rec.path, choice.camera_info,
-                                 rectified=is_rectified_topic(choice.camera or ""),
-                                 limit=CAMERA_INFO_SEARCH,
-                                 downscale=opts.downscale).calibration(*size)
-        if own is not None:
-            notes.append(f"CameraInfo on {choice.camera_info}: message {own[1]} used, the "
-                         f"first made for the images' {size[0]}x{size[1]} (the first usable "
-                         f"one is for {intr.width}x{intr.height})")
-            return own[0]
+    # within the messages resolve_intrinsics reads: a resize node that passes the full-size
+    # CameraInfo on has none for the images, and its whole topic is not read
+    cal = own_calibrations(rec, choice, opts, intr, limit=CAMERA_INFO_SEARCH) \
+        if size is not None and (intr.width, intr.height) != size else None
+    own = cal.calibration(*size) if cal is not None and size is not None else None
+    if own is not None and size is not None:
+        notes.append(f"CameraInfo on {choice.camera_info}: message {own[1]} used, the "
+                     f"first made for the images' {size[0]}x{size[1]} (the first usable "
+                     f"one is for {intr.width}x{intr.height})")
+        return own[0]
     return fit_to_images(intr, size, notes)
 
 

@@ -326,15 +326,17 @@ def _restore_camera(front: Any, stream: SensorStream, state: Any) -> None:
 
 
 def own_calibrations(rec: Recording, choice: TopicChoice, opts: Any,
-                     intr: Intrinsics | None) -> CalibrationsBySize | None:
+                     intr: Intrinsics | None, limit: int | None = None
+                     ) -> CalibrationsBySize | None:
     """Where K comes from the recording's CameraInfo, its messages for other image sizes (a
-    camera reconfigured mid-recording); not where the user passed a calibration."""
+    camera reconfigured mid-recording, or a driver whose first CameraInfo is for another mode;
+    ``limit``: messages read at most); not where the user passed a calibration."""
     if intr is None or not choice.camera_info or getattr(opts, "intrinsics", None) \
             or getattr(opts, "camera_info_file", None):
         return None
     return CalibrationsBySize(rec.path, choice.camera_info,
                               rectified=is_rectified_topic(choice.camera or ""),
-                              downscale=getattr(opts, "downscale", 1))
+                              limit=limit, downscale=getattr(opts, "downscale", 1))
 
 
 def prime_converter(rec: Recording, topic: str, conv: GrayConverter, opts: Any) -> None:
