@@ -260,6 +260,8 @@ class ConditionScoreDoc(_Doc):
     episodes: int
     episodes_found: int
     episode_recall: float | None
+    episode_recall_ci95: list[float] | None = Field(
+        default=None, description="95 % Wilson score interval of episode_recall [low, high]")
     frames_labelled: int
     frames_flagged: int
     true_positives: int
@@ -270,6 +272,8 @@ class ConditionScoreDoc(_Doc):
     healthy_frames: int
     false_alarms: int
     false_alarm_rate: float | None
+    false_alarm_rate_ci95: list[float] | None = Field(
+        default=None, description="95 % Wilson score interval of false_alarm_rate [low, high]")
 
 
 class EvalGate(_Doc):
@@ -285,6 +289,8 @@ class ScoresDoc(_Doc):
     healthy_frames: int
     false_alarms: int
     false_alarm_rate: float | None
+    false_alarm_rate_ci95: list[float] | None = Field(
+        default=None, description="95 % Wilson score interval of false_alarm_rate [low, high]")
     unknown_predicted: list[str]
     conditions: list[ConditionScoreDoc]
 

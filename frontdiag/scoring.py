@@ -23,6 +23,12 @@ Semantics, per condition ``c``:
   (one frame of slack at each edge) is neither right nor wrong.
 - The false-alarm rate is the share of healthy rows that carry any condition (overall), or
   ``c`` (per condition); the edge slack excuses these too.
+
+Episode recall and the false-alarm rate carry a 95 % Wilson score interval (Wilson 1927;
+Brown, Cai & DasGupta 2001 recommend it over the normal approximation for small counts): with
+4 episodes, 3 found reads 0.75 but is consistent with anything from 0.30 to 0.95. Frame precision
+carries none: the frames of one episode are not independent draws (a verdict holds over a
+persistence window), so a binomial interval over frames would be far too narrow.
 """
 
 from __future__ import annotations
@@ -42,6 +48,19 @@ from frontdiag.output import read_table
 
 LABEL_COLUMNS = ("t_start_ns", "t_end_ns", "condition")
 
+CONFIDENCE = 0.95
+"""Level of the intervals on episode recall and the false-alarm rate."""
+
+
+def wilson_interval(k: int, n: int, confidence: float = CONFIDENCE) -> tuple[float, float] | None:
+    """The Wilson score interval of a proportion k/n (scipy's ``binomtest``); None when n is 0."""
+    if n <= 0:
+        return None
+    from scipy.stats import binomtest
+
+    ci = binomtest(k, n).proportion_ci(confidence_level=confidence, method="wilson")
+    return float(ci.low), float(ci.high)
+
 
 @dataclass
 class ConditionScore:
@@ -59,6 +78,10 @@ class ConditionScore:
     @property
     def episode_recall(self) -> float | None:
         return self.episodes_found / self.episodes if self.episodes else None
+
+    @property
+    def episode_recall_ci95(self) -> tuple[float, float] | None:
+        return wilson_interval(self.episodes_found, self.episodes)
 
     @property
     def precision(self) -> float | None:
@@ -82,15 +105,26 @@ class ConditionScore:
     def false_alarm_rate(self) -> float | None:
         return self.false_alarms / self.healthy_frames if self.healthy_frames else None
 
+    @property
+    def false_alarm_rate_ci95(self) -> tuple[float, float] | None:
+        return wilson_interval(self.false_alarms, self.healthy_frames)
+
     def as_dict(self) -> dict[str, Any]:
         return {"condition": self.condition, "sensors": list(self.sensors),
                 "episodes": self.episodes, "episodes_found": self.episodes_found,
-                "episode_recall": self.episode_recall, "frames_labelled": self.frames_labelled,
+                "episode_recall": self.episode_recall,
+                "episode_recall_ci95": _pair(self.episode_recall_ci95),
+                "frames_labelled": self.frames_labelled,
                 "frames_flagged": self.frames_flagged, "true_positives": self.true_positives,
                 "false_positives": self.false_positives, "frame_precision": self.precision,
                 "frame_recall": self.recall, "frame_f1": self.f1,
                 "healthy_frames": self.healthy_frames, "false_alarms": self.false_alarms,
-                "false_alarm_rate": self.false_alarm_rate}
+                "false_alarm_rate": self.false_alarm_rate,
+                "false_alarm_rate_ci95": _pair(self.false_alarm_rate_ci95)}
+
+
+def _pair(ci: tuple[float, float] | None) -> list[float] | None:
+    return None if ci is None else [ci[0], ci[1]]
 
 
 @dataclass
@@ -106,6 +140,10 @@ class EvalReport:
     def false_alarm_rate(self) -> float | None:
         return self.false_alarms / self.healthy_frames if self.healthy_frames else None
 
+    @property
+    def false_alarm_rate_ci95(self) -> tuple[float, float] | None:
+        return wilson_interval(self.false_alarms, self.healthy_frames)
+
     def table(self) -> pd.DataFrame:
         return pd.DataFrame([c.as_dict() for c in self.conditions])
 
@@ -116,6 +154,7 @@ class EvalReport:
         return {"frames": self.frames, "labelled_frames": self.labelled_frames,
                 "healthy_frames": self.healthy_frames, "false_alarms": self.false_alarms,
                 "false_alarm_rate": self.false_alarm_rate,
+                "false_alarm_rate_ci95": _pair(self.false_alarm_rate_ci95),
                 "unknown_predicted": self.unknown_predicted,
                 "conditions": [{k: clean(v) for k, v in c.as_dict().items()}
                                for c in self.conditions]}
@@ -301,16 +340,27 @@ def pool(reports: Iterable[EvalReport]) -> EvalReport:
 
 
 def format_pooled(report: EvalReport) -> str:
-    """Plain-text table of a (pooled) report: episodes found, frame precision / recall / F1,
-    false alarms on healthy frames per condition, then the overall false-alarm rate."""
+    """Plain-text table of a (pooled) report: episodes found with the 95 % interval of episode
+    recall, frame precision / recall / F1, false alarms on healthy frames per condition, then
+    the overall false-alarm rate with its interval."""
     def f(v: float | None) -> str:
         return "  nan" if v is None else f"{v:5.2f}"
 
-    lines = [f"{'condition':24s} {'found':>7s} {'prec':>5s} {'recall':>6s} {'F1':>5s} {'FA':>9s}"]
+    def ci(v: tuple[float, float] | None, pct: bool = False) -> str:
+        if v is None:
+            return "-"
+        return f"{100 * v[0]:.1f}-{100 * v[1]:.1f} %" if pct else f"{v[0]:.2f}-{v[1]:.2f}"
+
+    lines = [f"{'condition':24s} {'found':>7s} {'95% CI':>9s} {'prec':>5s} {'recall':>6s} "
+             f"{'F1':>5s} {'FA':>9s}"]
     for c in report.conditions:
-        lines.append(f"{c.condition:24s} {c.episodes_found:>3d}/{c.episodes:<3d} {f(c.precision)} "
+        lines.append(f"{c.condition:24s} {c.episodes_found:>3d}/{c.episodes:<3d} "
+                     f"{ci(c.episode_recall_ci95):>9s} {f(c.precision)} "
                      f"{f(c.recall):>6s} {f(c.f1)} {c.false_alarms:>4d}/{c.healthy_frames:<4d}")
     rate = report.false_alarm_rate
     lines.append(f"false alarms on healthy frames: {report.false_alarms}/{report.healthy_frames}"
-                 f" = {float('nan') if rate is None else rate:.3f}")
+                 f" = {float('nan') if rate is None else rate:.3f} "
+                 f"(95% CI {ci(report.false_alarm_rate_ci95, pct=True)})")
+    lines.append("95% CI: Wilson score interval of episode recall (episodes found / labelled) "
+                 "and of the false-alarm rate")
     return "\n".join(lines)

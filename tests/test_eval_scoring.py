@@ -10,7 +10,14 @@ import pytest
 
 from frontdiag.cli import main
 from frontdiag.errors import ConfigError
-from frontdiag.scoring import read_frames, read_labels, score, split_conditions
+from frontdiag.scoring import (
+    format_pooled,
+    read_frames,
+    read_labels,
+    score,
+    split_conditions,
+    wilson_interval,
+)
 
 
 def _labels(rows: list[tuple[int, int, str]]) -> pd.DataFrame:
@@ -125,6 +132,45 @@ def test_bad_labels_are_config_errors(tmp_path: Path) -> None:
         read_labels(p)
 
 
+def _wilson_by_hand(k: int, n: int, z: float = 1.959963984540054) -> tuple[float, float]:
+    """Wilson (1927): (p + z²/2n ± z·sqrt(p(1-p)/n + z²/4n²)) / (1 + z²/n)."""
+    p = k / n
+    centre = (p + z * z / (2 * n)) / (1 + z * z / n)
+    half = z * (p * (1 - p) / n + z * z / (4 * n * n)) ** 0.5 / (1 + z * z / n)
+    return centre - half, centre + half
+
+
+@pytest.mark.parametrize(("k", "n"), [(3, 4), (0, 10), (10, 10), (11, 780), (1, 5)])
+def test_wilson_interval_matches_the_formula(k: int, n: int) -> None:
+    lo, hi = wilson_interval(k, n)
+    want = _wilson_by_hand(k, n)
+    assert (lo, hi) == pytest.approx(want, abs=1e-12)
+    assert lo <= k / n <= hi
+    assert wilson_interval(0, 0) is None
+
+
+def test_recall_and_false_alarms_carry_their_interval() -> None:
+    # four one-frame episodes of which three are flagged; 40 healthy frames with 2 alarms
+    labels = _labels([(0, 39, "healthy"), (40, 40, "pure_rotation"), (42, 42, "pure_rotation"),
+                      (44, 44, "pure_rotation"), (46, 46, "pure_rotation")])
+    conds = [""] * 40
+    conds[10] = conds[20] = "exposure_step"
+    conds += ["pure_rotation", "", "pure_rotation", "", "pure_rotation", "", "", ""]
+    rep = score(_frames(conds), labels)
+    r = _by(rep, "pure_rotation")
+    assert (r.episodes, r.episodes_found) == (4, 3)
+    assert r.episode_recall_ci95 == pytest.approx(_wilson_by_hand(3, 4))  # 0.30-0.95
+    assert (rep.false_alarms, rep.healthy_frames) == (2, 40)
+    assert rep.false_alarm_rate_ci95 == pytest.approx(_wilson_by_hand(2, 40))
+    d = rep.as_dict()
+    row = next(c for c in d["conditions"] if c["condition"] == "pure_rotation")
+    assert row["episode_recall_ci95"] == pytest.approx(list(_wilson_by_hand(3, 4)))
+    assert d["false_alarm_rate_ci95"] == pytest.approx(list(_wilson_by_hand(2, 40)))
+    text = format_pooled(rep)
+    assert "3/4" in text and "0.30-0.95" in text
+    assert "(95% CI 1.4-16.5 %)" in text
+
+
 def test_cli_eval_json_and_table(tmp_path: Path, capsys) -> None:
     res = tmp_path / "res"
     res.mkdir()
@@ -137,9 +183,12 @@ def test_cli_eval_json_and_table(tmp_path: Path, capsys) -> None:
     out = json.loads(capsys.readouterr().out)
     pr = next(c for c in out["conditions"] if c["condition"] == "pure_rotation")
     assert pr["episode_recall"] == 1.0 and pr["frame_precision"] == 1.0
+    assert pr["episode_recall_ci95"] == pytest.approx([0.2065, 1.0], abs=1e-4)  # 1 of 1
     assert out["false_alarm_rate"] == 0.0
+    assert out["false_alarm_rate_ci95"] == pytest.approx([0.0, 0.6576], abs=1e-4)  # 0 of 2
     assert main(["eval", str(res), "--labels", str(lab)]) == 0
-    assert "pure_rotation" in capsys.readouterr().out
+    text = capsys.readouterr().out
+    assert "pure_rotation" in text and "0.21–1.00" in text and "0.0–65.8 %" in text
     assert main(["eval", str(tmp_path / "missing"), "--labels", str(lab)]) == 2
 
 

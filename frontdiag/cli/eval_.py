@@ -24,6 +24,12 @@ def _fmt(v: float | None, pct: bool = False) -> str:
     return f"{100 * v:.1f} %" if pct else f"{v:.2f}"
 
 
+def _ci(v: tuple[float, float] | None, pct: bool = False) -> str:
+    if v is None:
+        return "—"
+    return f"{100 * v[0]:.1f}–{100 * v[1]:.1f} %" if pct else f"{v[0]:.2f}–{v[1]:.2f}"
+
+
 def find_labels(target: Path, labels: Path | None) -> tuple[Path, Path | None]:
     """The labels file to score against, and the recording they belong to (when known).
 
@@ -220,22 +226,25 @@ def register(app: typer.Typer) -> None:
         console = make_console()
         t = Table(title=f"frontdiag eval — {escape(str(target))} against "
                   f"{escape(labels_name)}", box=box.SIMPLE_HEAD, pad_edge=False,
-                  caption="found: episodes with ≥ 50 % of frames flagged · frames: labelled "
-                          "frames · FA: false alarms / healthy frames · each condition on the "
-                          "rows of its sensor (registration_degeneracy: LiDAR, others: camera)")
+                  caption="found: episodes with ≥ 50 % of frames flagged · recall 95 %: "
+                          "Wilson interval of found/episodes · frames: labelled frames · FA: "
+                          "false alarms / healthy frames · each condition on the rows of its "
+                          "sensor (registration_degeneracy: LiDAR, others: camera)")
         t.add_column("condition", no_wrap=True)
-        for col in ("found", "frames", "flagged", "precision", "F1", "FA"):
+        for col in ("found", "recall 95 %", "frames", "flagged", "precision", "F1", "FA"):
             t.add_column(col, justify="right", no_wrap=True)
         for c in report.conditions:
             if per_recording and not (c.episodes or c.frames_flagged):
                 continue  # a fleet scores every condition; show those that occur
-            t.add_row(c.condition, f"{c.episodes_found}/{c.episodes}", str(c.frames_labelled),
+            t.add_row(c.condition, f"{c.episodes_found}/{c.episodes}",
+                      _ci(c.episode_recall_ci95), str(c.frames_labelled),
                       str(c.frames_flagged), _fmt(c.precision), _fmt(c.f1),
                       f"{c.false_alarms}/{c.healthy_frames}")
         console.print(t)
         console.print(f"{report.frames} frames, {report.labelled_frames} labelled, "
                       f"{report.healthy_frames} healthy; false alarms on healthy frames: "
-                      f"{report.false_alarms} ({_fmt(report.false_alarm_rate, pct=True)})",
+                      f"{report.false_alarms} ({_fmt(report.false_alarm_rate, pct=True)}, "
+                      f"95 % interval {_ci(report.false_alarm_rate_ci95, pct=True)})",
                       highlight=False)
         if per_recording:
             console.print("per recording (found/labelled episodes of all conditions; false "
