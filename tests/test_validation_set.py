@@ -194,6 +194,22 @@ def test_score_built_recordings() -> None:
         assert rep.frames == build.expected_frames(by[name])
 
 
+@pytest.mark.skipif(not (VALDATA / "dev" / "udacity_highway.bag").exists(),
+                    reason="validation recordings not built (python validation/build.py)")
+def test_score_reads_a_recording_at_half_resolution(capsys) -> None:
+    """--downscale reaches the frontend: the highway's pictures are read at 480x270 (its frames
+    all scored), and the table says so."""
+    from validation import score as vscore
+
+    assert vscore.main(["--only", "udacity_highway", "--downscale", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "1 recordings, 110 frames, pictures shrunk 2x" in out
+    from frontdiag.api import analyze
+
+    df = analyze(VALDATA / "dev" / "udacity_highway.bag", downscale=2, max_frames=2)
+    assert set(df["width"]) == {480} and set(df["height"]) == {270}
+
+
 @pytest.mark.skipif(shutil.which("git") is None, reason="git not installed")
 @pytest.mark.parametrize("bare", [True, False])
 def test_source_reads_a_git_directory_at_the_manifest_commit(tmp_path: Path, bare: bool) -> None:

@@ -55,10 +55,13 @@ def recordings(manifest: dict[str, Any], split: str, data: Path) -> list[tuple[s
 
 
 def score_recording(path: Path, conditions: Sequence[str] = CAMERA_CONDITIONS,
-                    overrides: Path | None = None, video_crf: int | None = None) -> EvalReport:
+                    overrides: Path | None = None, video_crf: int | None = None,
+                    downscale: int = 1) -> EvalReport:
     """Analyse one built recording with the default rules (thresholds changed by an
     ``overrides`` file, the format of ``frontdiag analyze --overrides``) and score it; with
-    ``video_crf``, its camera re-encoded as H.264 at that CRF (validation/video.py)."""
+    ``video_crf``, its camera re-encoded as H.264 at that CRF (validation/video.py); with
+    ``downscale``, its pictures shrunk by that factor before the frontend sees them (as
+    ``frontdiag analyze --downscale``; the intrinsics scale with them)."""
     import tempfile
 
     from frontdiag.api import analyze
@@ -73,11 +76,13 @@ def score_recording(path: Path, conditions: Sequence[str] = CAMERA_CONDITIONS,
         with tempfile.TemporaryDirectory() as tmp:
             video = to_h264(path, Path(tmp) / f"{path.name}.h264.mcap", crf=video_crf)
             frames = normalise_frames(
-                analyze(video, rules_overrides=str(overrides) if overrides else None),
+                analyze(video, rules_overrides=str(overrides) if overrides else None,
+                        downscale=downscale),
                 source=str(path))
         return score(frames, labels, conditions=conditions)
     frames = normalise_frames(
-        analyze(path, rules_overrides=str(overrides) if overrides else None), source=str(path))
+        analyze(path, rules_overrides=str(overrides) if overrides else None,
+                downscale=downscale), source=str(path))
     return score(frames, labels, conditions=conditions)
 
 
@@ -99,6 +104,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--video", type=int, default=None, metavar="CRF",
                     help="score each recording's camera re-encoded as H.264 video at this "
                          "CRF (23: a camera streaming at a few Mbit/s; higher is coarser)")
+    ap.add_argument("--downscale", type=int, default=1, metavar="N",
+                    help="score with every camera's pictures shrunk by N (as frontdiag "
+                         "analyze --downscale): do the verdicts hold at another resolution?")
     a = ap.parse_args(argv)
     recs = recordings(load_manifest(a.manifest), a.split, a.data)
     if a.only:
@@ -111,7 +119,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     reports: dict[str, EvalReport] = {}
     for i, (name, path) in enumerate(recs, 1):
         print(f"[{i}/{len(recs)}] {name}", file=sys.stderr)
-        reports[name] = score_recording(path, overrides=a.overrides, video_crf=a.video)
+        reports[name] = score_recording(path, overrides=a.overrides, video_crf=a.video,
+                                        downscale=a.downscale)
     pooled = pool(reports.values())
     if a.json:
         print(json.dumps({"split": a.split, "pooled": pooled.as_dict(),
@@ -123,6 +132,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"== {name}")
             print(format_pooled(pool([_labelled_only(rep)])) + "\n")
     video = "" if a.video is None else f", as H.264 video at CRF {a.video}"
+    if a.downscale > 1:
+        video += f", pictures shrunk {a.downscale}x"
     print(f"== {a.split}: {len(recs)} recordings, {pooled.frames} frames{video}")
     print(format_pooled(_labelled_only(pooled)))
     return 0
