@@ -127,6 +127,16 @@ def _pair(ci: tuple[float, float] | None) -> list[float] | None:
     return None if ci is None else [ci[0], ci[1]]
 
 
+def format_interval(ci: tuple[float, float] | None, pct: bool = False, dash: str = "-",
+                    missing: str = "-") -> str:
+    """``0.30-0.95`` (or ``0.1-1.4 %`` with ``pct``) for an interval; ``missing`` for None."""
+    if ci is None:
+        return missing
+    if pct:
+        return f"{100 * ci[0]:.1f}{dash}{100 * ci[1]:.1f} %"
+    return f"{ci[0]:.2f}{dash}{ci[1]:.2f}"
+
+
 @dataclass
 class EvalReport:
     conditions: list[ConditionScore]
@@ -346,21 +356,16 @@ def format_pooled(report: EvalReport) -> str:
     def f(v: float | None) -> str:
         return "  nan" if v is None else f"{v:5.2f}"
 
-    def ci(v: tuple[float, float] | None, pct: bool = False) -> str:
-        if v is None:
-            return "-"
-        return f"{100 * v[0]:.1f}-{100 * v[1]:.1f} %" if pct else f"{v[0]:.2f}-{v[1]:.2f}"
-
     lines = [f"{'condition':24s} {'found':>7s} {'95% CI':>9s} {'prec':>5s} {'recall':>6s} "
              f"{'F1':>5s} {'FA':>9s}"]
     for c in report.conditions:
         lines.append(f"{c.condition:24s} {c.episodes_found:>3d}/{c.episodes:<3d} "
-                     f"{ci(c.episode_recall_ci95):>9s} {f(c.precision)} "
+                     f"{format_interval(c.episode_recall_ci95):>9s} {f(c.precision)} "
                      f"{f(c.recall):>6s} {f(c.f1)} {c.false_alarms:>4d}/{c.healthy_frames:<4d}")
     rate = report.false_alarm_rate
     lines.append(f"false alarms on healthy frames: {report.false_alarms}/{report.healthy_frames}"
                  f" = {float('nan') if rate is None else rate:.3f} "
-                 f"(95% CI {ci(report.false_alarm_rate_ci95, pct=True)})")
+                 f"(95% CI {format_interval(report.false_alarm_rate_ci95, pct=True)})")
     lines.append("95% CI: Wilson score interval of episode recall (episodes found / labelled) "
                  "and of the false-alarm rate")
     return "\n".join(lines)

@@ -25,9 +25,9 @@ def _fmt(v: float | None, pct: bool = False) -> str:
 
 
 def _ci(v: tuple[float, float] | None, pct: bool = False) -> str:
-    if v is None:
-        return "—"
-    return f"{100 * v[0]:.1f}–{100 * v[1]:.1f} %" if pct else f"{v[0]:.2f}–{v[1]:.2f}"
+    from frontdiag.scoring import format_interval
+
+    return format_interval(v, pct=pct, dash="–", missing="—")
 
 
 def find_labels(target: Path, labels: Path | None) -> tuple[Path, Path | None]:
