@@ -66,6 +66,11 @@ class CameraConfig(_Strict):
                               description="read the motion over at least this long (s) where a "
                                           "keyframe interval is shorter and could read as "
                                           "rotation or standing still; 0: never")
+    rot_span_focal_px: float = Field(default=495.0, ge=0.0, le=100000.0,
+                                     description="below this focal length (px) the span is "
+                                                 "longer, rot_span_s x rot_span_focal_px / fx, "
+                                                 "so slow motion rises above pixel noise at "
+                                                 "any resolution; 0: never longer")
     seed: int = Field(default=0, ge=0, description="RANSAC seed")
 
     @model_validator(mode="after")

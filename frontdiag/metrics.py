@@ -146,9 +146,9 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
     _M("parallax_med_deg_2kf", "deg", "camera", "parallax_med_deg against ref2_frame", "higher"),
     _M("parallax_med_px_2kf", "px", "camera", "parallax_med_px against ref2_frame", "higher"),
     _M("span_frame", "", "camera",
-       "the frame the motion over at least rot_span_s (0.33 s) was read against, where the "
-       "keyframe interval was shorter and could read as rotation or standing still; -1 when "
-       "not read"),
+       "the frame the motion over at least rot_span_s (0.33 s; longer in proportion below a "
+       "495 px focal length, rot_span_focal_px) was read against, where the keyframe interval "
+       "was shorter and could read as rotation or standing still; -1 when not read"),
     _M("span_dt_s", "s", "camera", "time between span_frame and the interval's last frame"),
     _M("rot_only_px_span", "px", "camera",
        "rot_only_px over the span (the interval's last frame against span_frame): over a "

@@ -481,7 +481,7 @@ def _pan(n: int, step_deg: float) -> list[np.ndarray]:
 def _span_rows(grays: list[np.ndarray], **params: float) -> list[dict]:
     fe = CameraFrontend(CameraParams(**params), Intrinsics(K=K))  # type: ignore[arg-type]
     rows = run_completed(fe, grays)
-    # frames are kept only as far back as a later interval can read: 0.33 s at 30 Hz
+    # frames are kept only as far back as a later interval can read: 0.36 s at 30 Hz
     assert len(fe._history) <= 12
     return rows
 
@@ -519,14 +519,38 @@ def test_no_span_reading_where_the_interval_is_long_or_moves_enough() -> None:
     assert [i for i, r in enumerate(rows) if r["keyframe_reason"]] == [0, 20, 40]
     assert all(r["span_frame"] == -1 for r in rows[:41])
     # the recording ends 4 frames into the last interval: that one is short (read against
-    # frame 34, 10 frames of 33 ms before frame 44), and still
+    # frame 33, 11 frames of 33 ms before frame 44: the span is 0.33 s x 495 / 457 px = 0.357 s
+    # at this focal length), and still
     last = rows[41:]
-    assert all(r["span_frame"] == 34 and r["rot_only_px_span"] < 1.0 for r in last), \
+    assert all(r["span_frame"] == 33 and r["rot_only_px_span"] < 1.0 for r in last), \
         [(r["span_frame"], r["rot_only_px_span"]) for r in last]
     rows = _span_rows(walk(30, step_deg=0.05, step_m=0.08), kf_max_frames=3)
     assert all(r["span_frame"] == -1 for r in rows)
     rows = _span_rows(walk(24, step_deg=0.05, step_m=0.008), kf_max_frames=3, rot_span_s=0.0)
     assert all(r["span_frame"] == -1 for r in rows)
+
+
+@pytest.mark.parametrize(("f_px", "span_s"), [(457.0, 0.33 * 495 / 457), (914.0, 0.33),
+                                               (228.5, 0.33 * 495 / 228.5)])
+def test_the_span_grows_as_the_focal_length_shrinks(f_px: float, span_s: float) -> None:
+    """The span reads the motion over rot_span_s, and over rot_span_s x 495 px / f below
+    495 px (the same camera at a lower resolution): the reading's frame is the newest at least
+    that long before the interval's last frame, and no older frame is kept than it needs."""
+    Kf = K.copy()
+    Kf[0, 0] = Kf[1, 1] = f_px
+    grays = walk(24, step_deg=0.05, step_m=0.008)
+    fe = CameraFrontend(CameraParams(kf_max_frames=3), Intrinsics(K=Kf))
+    rows = run_completed(fe, grays)
+    read = [r for r in rows if r["span_frame"] >= 0]
+    assert read
+    frame_s = 1 / 30
+    for r in read:
+        assert span_s - 1e-6 <= r["span_dt_s"] < span_s + frame_s
+    assert len(fe._history) <= math.ceil(span_s / frame_s) + 2
+    # rot_span_focal_px = 0 keeps rot_span_s whatever the focal length
+    fe = CameraFrontend(CameraParams(kf_max_frames=3, rot_span_focal_px=0.0), Intrinsics(K=Kf))
+    assert all(0.33 - 1e-6 <= r["span_dt_s"] < 0.33 + frame_s
+               for r in run_completed(fe, grays) if r["span_frame"] >= 0)
 
 
 def test_span_history_stays_bounded_when_stamps_do_not_advance() -> None:

@@ -58,6 +58,16 @@ span (``*_span`` columns, on every row of the interval). A camera that only turn
 still is still explained by a rotation over the longer span; a translating one is not. Frames
 are kept for this as descriptors and points only, and only as far back as a later interval
 can read.
+
+The span is longer where the focal length in pixels is short: ``rot_span_s`` times
+``rot_span_focal_px / f`` below ``rot_span_focal_px`` (495 px). Its lines are noise lines in
+pixels (the homography threshold, 2.45 px at sigma = 1 px), but a moving camera's parallax in
+pixels is proportional to f: the slowest motion the span must tell from standing still (1 % of
+the scene's depth in 0.2 s, 0.05 depths a second), moving forward (median sine of the angle
+between a ray and the direction of travel about 0.3 over a 60 deg view), moves points
+f x 0.05 x 0.3 x 0.33 px in 0.33 s, which is 2.45 px at f = 495 px. At half that focal length
+(the same camera at half the resolution) the same motion needs twice the time to rise above the
+same noise; a camera standing still stays under the lines however long the span.
 """
 
 from __future__ import annotations
@@ -151,6 +161,7 @@ class CameraParams:
     rot_fit_parallax_deg: float = 0.3  # ... with at least this much parallax
     rot_fit_turn_px: float = 10.0  # ... and on intervals that turned this much, whatever H/E
     rot_span_s: float = 0.33  # read the motion over at least this long (module docstring)
+    rot_span_focal_px: float = 495.0  # ... longer in proportion below this focal length
     seed: int = 0
 
     def as_dict(self) -> dict[str, Any]:
@@ -303,7 +314,17 @@ class CameraFrontend:
         under ``rot_span_s`` so far."""
         if not kf.row_frames or self._prev is None or self._K is None:
             return False
-        return (self._prev.t_ns - kf.view.t_ns) * 1e-9 < self.params.rot_span_s
+        return (self._prev.t_ns - kf.view.t_ns) * 1e-9 < self._span_s()
+
+    def _span_s(self) -> float:
+        """How long the span reading reads the motion over: ``rot_span_s``, and in proportion
+        longer where the focal length in pixels is under ``rot_span_focal_px`` (module
+        docstring), so that the slowest motion it must see rises above localisation noise
+        within it at any resolution."""
+        p = self.params
+        if self._K is None or p.rot_span_focal_px <= 0:
+            return p.rot_span_s
+        return p.rot_span_s * max(1.0, p.rot_span_focal_px / float(self._K[0, 0]))
 
     # ------------------------------------------------------------------ state (for windows)
     def state_key(self) -> tuple[int, int, int] | None:
@@ -519,7 +540,7 @@ class CameraFrontend:
         if self._history and self._history[-1].t_ns > cur.t_ns:
             self._history = []
         self._history.append(_Past(cur.index, cur.t_ns, cur.feats.des, cur.und))
-        line = cur.t_ns - self.params.rot_span_s * 1e9
+        line = cur.t_ns - self._span_s() * 1e9
         old = [i for i, h in enumerate(self._history) if h.t_ns <= line]
         if old:
             del self._history[:old[-1]]
@@ -602,7 +623,8 @@ class CameraFrontend:
         p = self.params
         if self._K is None or p.rot_span_s <= 0:
             return
-        if (last.t_ns - kf.view.t_ns) * 1e-9 >= p.rot_span_s:
+        span_s = self._span_s()
+        if (last.t_ns - kf.view.t_ns) * 1e-9 >= span_s:
             return
         par_line = p.rot_fit_parallax_deg * (1 - 1e-9)
         par = np.array([r[0] for r in kf.reads])
@@ -611,7 +633,7 @@ class CameraFrontend:
         fit = any(f <= homography_threshold_px(p.sigma_px) for f in fits)
         if not (low or fit):
             return
-        line = last.t_ns - p.rot_span_s * 1e9
+        line = last.t_ns - span_s * 1e9
         old = [h for h in self._history if h.t_ns <= line and h.index < last.index]
         if not old:
             return
