@@ -316,6 +316,8 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
         if choice.camera and intr is None:
             notes.append(f"no intrinsics: E, parallax, rotation and pose information are not "
                          f"computed; {HOW_TO_PASS_K}")
+        if intr is not None:
+            notes.extend(short_focal_note(intr, opts))
         counts = {t.topic: t.count for t in topic_infos}
         expected = sum(_expected(counts.get(t), opts, rec) or 0
                        for t in (choice.camera, choice.lidar) if t)
@@ -377,6 +379,24 @@ def _read_intervals_for(ruleset: Any, opts: AnalysisOptions) -> AnalysisOptions:
                   rot_fit_parallax_deg=min(par, cp.rot_fit_parallax_deg),
                   rot_fit_turn_px=min(turn, cp.rot_fit_turn_px))
     return opts if new == cp else replace(opts, camera_params=new)
+
+
+def short_focal_note(intr: Intrinsics, opts: AnalysisOptions) -> list[str]:
+    """The note that FD-ROT-001 reads the motion over a longer span than 0.33 s, where the
+    focal length in pixels is under the frontend's ``rot_span_focal_px`` (docs/rules.md,
+    "The span at low resolution")."""
+    from frontdiag.camera.frontend import CameraParams
+
+    cp = opts.camera_params or CameraParams()
+    f = float(intr.K[0, 0])
+    if cp.rot_span_s <= 0 or cp.rot_span_focal_px <= 0 or not 0 < f < cp.rot_span_focal_px:
+        return []
+    span = cp.rot_span_s * cp.rot_span_focal_px / f
+    return [f"focal length {f:.0f} px, under {cp.rot_span_focal_px:g} px: FD-ROT-001 reads the "
+            f"motion over {span:.2f} s rather than {cp.rot_span_s:g} s before calling it a turn "
+            "or standing still, since parallax in pixels shrinks with the focal length while "
+            "localisation noise does not; slow motion can still read as standing still at "
+            "short focal lengths (docs/rules.md, \"The span at low resolution\")"]
 
 
 def _stream_notes(path: Path, rec: Recording, run: StreamRun,

@@ -812,3 +812,25 @@ def test_a_camera_info_region_of_interest_and_binning_move_k_to_the_images(
     assert any("binning 2x2" in n for n in man["notes"])
     assert not any("scaled" in n for n in man["notes"])  # binning explained the size
     pd.testing.assert_frame_equal(own[cols], b2[cols])
+
+
+def test_a_short_focal_length_is_said_to_lengthen_the_motion_span(tmp_path: Path) -> None:
+    """At 120 px (the factory's K) the span FD-ROT-001 reads the motion over is
+    0.33 s x 495 / 120 = 1.36 s, and the notes say so; a long focal length, or a frontend
+    with rot_span_focal_px = 0, keeps 0.33 s and says nothing."""
+    from dataclasses import replace
+
+    from frontdiag.api import analyze
+    from frontdiag.camera.frontend import CameraParams
+
+    rec = write_recording(tmp_path / "run.mcap", "mcap", n=4)
+
+    def focal_notes(**kw: object) -> list[str]:
+        df = analyze(rec, **kw)
+        return [n for n in df.attrs["manifest"]["notes"] if n.startswith("focal length")]
+
+    notes = focal_notes()
+    assert len(notes) == 1
+    assert notes[0].startswith("focal length 120 px, under 495 px") and "over 1.36 s" in notes[0]
+    assert focal_notes(intrinsics="600,600,80,60") == []
+    assert focal_notes(camera_params=replace(CameraParams(), rot_span_focal_px=0.0)) == []
