@@ -816,8 +816,8 @@ def test_a_camera_info_region_of_interest_and_binning_move_k_to_the_images(
 
 def test_a_short_focal_length_is_said_to_lengthen_the_motion_span(tmp_path: Path) -> None:
     """At 120 px (the factory's K) the span FD-ROT-001 reads the motion over is
-    0.33 s x 495 / 120 = 1.36 s, and the notes say so; a long focal length, or a frontend
-    with rot_span_focal_px = 0, keeps 0.33 s and says nothing."""
+    0.33 s x 495 / 120 = 1.36 s, and the notes say so (from 1.5 times 0.33 s on); a long
+    focal length, or a frontend with rot_span_focal_px = 0, keeps 0.33 s and says nothing."""
     from dataclasses import replace
 
     from frontdiag.api import analyze
@@ -833,4 +833,6 @@ def test_a_short_focal_length_is_said_to_lengthen_the_motion_span(tmp_path: Path
     assert len(notes) == 1
     assert notes[0].startswith("focal length 120 px, under 495 px") and "over 1.36 s" in notes[0]
     assert focal_notes(intrinsics="600,600,80,60") == []
+    assert focal_notes(intrinsics="400,400,80,60") == []  # 0.41 s: too close to 0.33 s to say
+    assert "over 0.54 s" in focal_notes(intrinsics="300,300,80,60")[0]
     assert focal_notes(camera_params=replace(CameraParams(), rot_span_focal_px=0.0)) == []
