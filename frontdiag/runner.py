@@ -461,6 +461,7 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
     tf_odom = TfOdometry() if lid_front is not None and (
         choice.tf or (choice.odometry and choice.tf_static)) else None
     mount = _Mount()  # the odometry topic's child frame and the LiDAR's, once known
+    odom_seen = False
     tf_topics = (choice.tf, choice.tf_static) if tf_odom is not None else ()
     read_topics = [t for t in (choice.camera, choice.lidar, choice.odometry, *tf_topics) if t]
     for stream in (cam_stream, lid_stream):
@@ -512,6 +513,7 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
                     try:
                         msg = rec.deserialize(raw)
                         lid_front.add_odometry(header_stamp_ns(msg), odometry_pose(msg))
+                        odom_seen = True
                         mount.child = mount.child or str(getattr(msg, "child_frame_id", ""))
                     except Exception as exc:
                         log.debug("odometry message skipped: %s", exc)
@@ -604,9 +606,10 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
             out.interrupted = True
         if not out.interrupted:
             release(None)  # the scans still waiting for odometry that will not come
-        if tf_odom is not None and lid_stream is not None:
-            lid_stream.stats.prior_note = (tf_prior_note(choice, tf_odom) if choice.tf
-                                           else mount.note(choice))
+        if lid_stream is not None and tf_odom is not None and choice.tf:
+            lid_stream.stats.prior_note = tf_prior_note(choice, tf_odom)
+        elif lid_stream is not None and choice.odometry:
+            lid_stream.stats.prior_note = mount.note(choice, odom_seen)
         if cam_stream is not None and conv is not None:
             cam_stream.stats.conversion = conv.mono16
         if cam_front is not None and cam_stream is not None:
@@ -639,7 +642,12 @@ class _Mount:
         if self.T is not None:
             front.set_mount(self.T)
 
-    def note(self, choice: TopicChoice) -> str | None:
+    def note(self, choice: TopicChoice, seen: bool = False) -> str | None:
+        """What the notes say about the mount; ``seen``: the odometry topic had messages."""
+        if seen and not self.child:
+            return (f"{choice.odometry} names no child frame (a pose topic, or an empty "
+                    "child_frame_id): its motion is used as the LiDAR's, as if the LiDAR sat "
+                    "where its poses are")
         if not self.tried:
             return None
         if self.T is None:

@@ -384,3 +384,56 @@ def test_info_says_where_the_lidar_prior_will_come_from(tmp_path: Path, capsys) 
                        capsys)
     assert code == 0 and ("odometry from /tf (an odometry frame chained to the LiDAR's frame, "
                           "if one is)") in " ".join(out.split())
+
+
+def _odom_as_poses(src: Path, dst: Path, msgtype: str) -> Path:
+    """A copy of a ROS 2 MCAP file without /tf and /tf_static, its /odom rewritten as ``msgtype``
+    (geometry_msgs PoseStamped or PoseWithCovarianceStamped) on /pose, the same stamps and
+    poses; every other message copied as it was."""
+    from mcap.reader import make_reader
+
+    from frontdiag.io.writer import RecordingWriter
+
+    with src.open("rb") as f, RecordingWriter(dst, "mcap") as w:
+        for schema, ch, msg in make_reader(f).iter_messages(log_time_order=True):
+            if ch.topic in ("/tf", "/tf_static") or schema is None:
+                continue
+            if ch.topic != "/odom":
+                w.write_raw(ch.topic, schema.name, msg.data, msg.log_time)
+                continue
+            o = w.ts.deserialize_cdr(msg.data, "nav_msgs/msg/Odometry")
+            p, q = o.pose.pose.position, o.pose.pose.orientation
+            pose = {"position": {"x": p.x, "y": p.y, "z": p.z},
+                    "orientation": {"x": q.x, "y": q.y, "z": q.z, "w": q.w}}
+            if msgtype.endswith("PoseWithCovarianceStamped"):
+                pose = {"pose": pose, "covariance": [0.0] * 36}
+            header = {"stamp": {"sec": o.header.stamp.sec, "nanosec": o.header.stamp.nanosec},
+                      "frame_id": o.header.frame_id}
+            w.write("/pose", msgtype, {"header": header, "pose": pose}, msg.log_time)
+    return dst
+
+
+@pytest.mark.parametrize("msgtype", ["geometry_msgs/msg/PoseStamped",
+                                     "geometry_msgs/msg/PoseWithCovarianceStamped"])
+def test_a_pose_topic_named_by_odom_topic_is_the_lidar_prior(tmp_path: Path, msgtype: str) -> None:
+    """--odom-topic takes a pose topic: the LiDAR rows are those the same poses give as
+    nav_msgs/Odometry; a pose topic is never taken unasked (the notes name it instead), and
+    the notes say that a pose names no child frame."""
+    sample = Path(__file__).resolve().parents[1] / "sample_logs" / "dock_corridor.mcap"
+    kw = {"no_camera": True, "max_frames": 8, "no_rules": True}
+    ref = frontdiag.analyze(_mcap_without(sample, tmp_path / "odom.mcap", "/tf", "/tf_static"),
+                            **kw)
+    assert set(ref.table["lidar_prior"][1:]) == {"odometry"}
+    poses = _odom_as_poses(sample, tmp_path / "poses.mcap", msgtype)
+    got = frontdiag.analyze(poses, odom_topic="/pose", **kw)
+    assert got.manifest["topics"]["odometry"] == "/pose"
+    assert list(got.table["lidar_prior"]) == list(ref.table["lidar_prior"])
+    for col in ("icp_rmse_m", "icp_fitness", "lidar_eig_min", "deskew_m"):
+        assert got.table[col].to_numpy() == pytest.approx(ref.table[col].to_numpy(), rel=1e-9,
+                                                          abs=1e-12, nan_ok=True), col
+    assert any("/pose names no child frame" in n for n in got.manifest["notes"])
+    unasked = frontdiag.analyze(poses, **kw)
+    assert unasked.manifest["topics"]["odometry"] is None
+    assert set(unasked.table["lidar_prior"][2:]) == {"constant_velocity"}
+    assert any("/pose (poses) could give it: pass --odom-topic /pose" in n
+               for n in unasked.manifest["notes"])

@@ -81,7 +81,10 @@ def analyze_cmd(
                                            "CustomMsg); several, comma-separated, as for "
                                            "--camera-topic."),
     odom_topic: str | None = typer.Option(None, "--odom-topic",
-                                          help="Odometry used as the LiDAR motion prior."),
+                                          help="Odometry used as the LiDAR motion prior: "
+                                          "nav_msgs/Odometry, or a PoseStamped / "
+                                          "PoseWithCovarianceStamped topic of the robot's "
+                                          "continuous pose."),
     no_camera: bool = typer.Option(False, "--no-camera", help="Skip the camera frontend."),
     no_lidar: bool = typer.Option(False, "--no-lidar", help="Skip the LiDAR frontend."),
     intrinsics: str | None = typer.Option(None, "--intrinsics", metavar="FX,FY,CX,CY",

@@ -46,9 +46,11 @@ def stamp_ns(msg: Any, log_ns: int) -> int:
 
 
 def odometry_pose(msg: Any) -> np.ndarray:
-    """4x4 pose from nav_msgs/Odometry."""
-    p = msg.pose.pose.position
-    q = msg.pose.pose.orientation
+    """4x4 pose from nav_msgs/Odometry, geometry_msgs/PoseWithCovarianceStamped (both hold
+    ``pose.pose``) or geometry_msgs/PoseStamped (``pose``)."""
+    pose = msg.pose
+    pose = getattr(pose, "pose", pose)
+    p, q = pose.position, pose.orientation
     return pose_matrix((p.x, p.y, p.z), (q.x, q.y, q.z, q.w))
 
 

@@ -19,6 +19,9 @@ LIDAR_TYPES = ("sensor_msgs/msg/PointCloud2", "sensor_msgs/msg/LaserScan",
                "velodyne_msgs/msg/VelodyneScan",
                *foxglove.LIDAR_TYPES)
 ODOMETRY_TYPE = "nav_msgs/msg/Odometry"
+POSE_TYPES = ("geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/PoseWithCovarianceStamped")
+"""Poses read as the LiDAR's odometry when --odom-topic names them (a pose topic is never picked
+on its own: goals, initial poses and map-frame localisers that jump are pose topics too)."""
 _NOT_ODOMETRY = ("ground_truth", "groundtruth", "/gt", "truth", "mocap", "vicon")
 # image topics that carry range, not intensity (RGB-D and stereo drivers publish them beside the
 # camera: /camera/depth/image, /camera/aligned_depth_to_color/image_raw, .../compressedDepth)
@@ -125,7 +128,8 @@ def choose_topics(topics: list[TopicInfo], *, camera_topic: str | None = None,
     if lid is not None:
         odoms = candidates(topics, (ODOMETRY_TYPE,))
         if odom_topic is not None:
-            picked = _pick("odometry", "--odom-topic", odom_topic, odoms, topics)
+            picked = _pick("odometry", "--odom-topic", odom_topic,
+                           candidates(topics, (ODOMETRY_TYPE, *POSE_TYPES)), topics)
             odom = picked.topic if picked else None
         else:
             usable = [o for o in odoms if not any(k in o.topic.lower() for k in _NOT_ODOMETRY)]
@@ -143,6 +147,13 @@ def choose_topics(topics: list[TopicInfo], *, camera_topic: str | None = None,
             dyn = [t for t in tfs if not t.topic.rstrip("/").endswith("tf_static")]
             tf = next((t.topic for t in dyn if t.topic.strip("/") == "tf"),
                       dyn[0].topic if len(dyn) == 1 else None)
+    if lid is not None and odom is None and tf is None and odom_topic is None:
+        poses = [t.topic for t in candidates(topics, POSE_TYPES)
+                 if not any(k in t.topic.lower() for k in _NOT_ODOMETRY)]
+        if poses:
+            notes.append(f"no odometry for the LiDAR's motion prior; {', '.join(poses[:3])} "
+                         "(poses) could give it: pass --odom-topic "
+                         f"{poses[0]} if it is the robot's own continuous pose")
     if cam is None and lid is None:
         if depth and use_lidar:
             raise TopicError("no usable sensor topics: the only images are depth images ("
