@@ -97,8 +97,8 @@ def main() -> int:
     for k in args.first or [0]:
         conv = fixed(pics[k][1])
         n = np.array([len(ex.detect_and_compute(conv._mono16_to_8(img))) for _, img in pics])
-        how = f"window {conv.mono16_window}" if conv.mono16_window else \
-            f"shift {conv.mono16_shift}"
+        m = conv.mono16_map
+        how = "?" if m is None else f"window {m.window}" if m.window else f"shift {m.shift}"
         print(f"   {pics[k][0]} ({how}): " + stats(n))
     return 0
 

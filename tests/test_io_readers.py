@@ -272,7 +272,7 @@ def test_mono16_shift_is_fixed_from_first_frame() -> None:
                  "sensor_msgs/msg/Image")
     gb, _ = conv(build_message(ts, "sensor_msgs/msg/Image", image_msg(b, "mono16", 2)),
                  "sensor_msgs/msg/Image")
-    assert conv.mono16_shift == 4
+    assert conv.mono16_map is not None and conv.mono16_map.shift == 4
     assert int(ga[0, 0]) == 4000 >> 4 and int(gb[0, 0]) == 2000 >> 4
 
 
@@ -302,7 +302,7 @@ def test_mono16_on_a_pedestal_is_mapped_from_its_own_range() -> None:
     warm = (first + (p99 - p1) // 3).astype(np.uint16)
     g2, _ = conv(build_message(ts, "sensor_msgs/msg/Image", image_msg(warm, "mono16", 2)),
                  "sensor_msgs/msg/Image")
-    assert conv.mono16_window == window
+    assert conv.mono16_map is not None and conv.mono16_map.window == window
     assert g2.max() < 255 and float(g2.mean() - g1.mean()) == pytest.approx(128 / 3, abs=2)
     # a visible camera's 12 bits from near zero: a shift, so a gain step keeps its ratio
     visible = (scene.astype(np.uint16) * 16 + 5).astype(np.uint16)

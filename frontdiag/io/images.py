@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -103,11 +103,8 @@ class GrayConverter:
     (:class:`VideoDecoder`)."""
 
     topic: str
-    mono16_shift: int | None = None
-    mono16_window: tuple[int, int] | None = None
-    """[lo, hi) counts mapped linearly to 0-255, for pictures on a pedestal (None: a shift)."""
-    mono16_note: str | None = None
-    """How 16-bit pictures were mapped to 8 bits, for the run's notes."""
+    mono16_map: Mono16Mapping | None = None
+    """How 16-bit pictures are mapped to 8 bits, fixed from the first one (None before it)."""
     video: VideoDecoder | None = None
     downscale: int = 1
     """Pictures are shrunk by this integer factor (``analyze --downscale``), box-averaged."""
@@ -116,24 +113,15 @@ class GrayConverter:
     def mono16(self) -> dict[str, Any] | None:
         """The 16-bit mapping in use (for the manifest, from which :meth:`mapped` rebuilds it),
         or None before any 16-bit picture."""
-        if self.mono16_shift is None:
-            return None
-        return {"shift": self.mono16_shift,
-                "window": None if self.mono16_window is None else list(self.mono16_window),
-                "note": self.mono16_note}
+        return None if self.mono16_map is None else self.mono16_map.as_dict()
 
     @classmethod
     def mapped(cls, topic: str, mono16: Mapping[str, Any] | None,
                downscale: int = 1) -> GrayConverter:
         """A converter that maps 16-bit pictures as a run did (its ``mono16``) and shrinks them
         as it did, so a picture re-read on its own is the one the frontend saw."""
-        conv = cls(topic, downscale=downscale)
-        if mono16:
-            conv.mono16_shift = int(mono16["shift"])
-            window = mono16.get("window")
-            conv.mono16_window = None if not window else (int(window[0]), int(window[1]))
-            conv.mono16_note = mono16.get("note")
-        return conv
+        return cls(topic, mono16_map=Mono16Mapping.from_dict(mono16) if mono16 else None,
+                   downscale=downscale)
 
     def __call__(self, msg: Any, msgtype: str) -> tuple[np.ndarray, str]:
         gray, encoding = self._grey(msg, msgtype)
@@ -205,13 +193,9 @@ class GrayConverter:
 
     def _mono16_to_8(self, img16: np.ndarray) -> np.ndarray:
         """8 bits from 16, by a mapping fixed from the first frame (:func:`mono16_mapping`)."""
-        if self.mono16_shift is None:
-            self.mono16_shift, self.mono16_window, self.mono16_note = mono16_mapping(img16)
-        if self.mono16_window is None:
-            return (img16 >> self.mono16_shift).clip(0, 255).astype(np.uint8)
-        lo, hi = self.mono16_window
-        scaled = (img16.astype(np.float32) - np.float32(lo)) * np.float32(256.0 / (hi - lo))
-        return np.clip(scaled, 0, 255).astype(np.uint8)
+        if self.mono16_map is None:
+            self.mono16_map = mono16_mapping(img16)
+        return self.mono16_map.apply(img16)
 
 
 def shrunk_size(w: int, h: int, factor: int) -> tuple[int, int]:
@@ -240,7 +224,37 @@ the scene may warm or cool, or a hot object enter, by half its initial spread be
 saturating. The first frame's 1st-99th percentiles map to 64-192 of 0-255."""
 
 
-def mono16_mapping(img16: np.ndarray) -> tuple[int, tuple[int, int] | None, str]:
+class Mono16Mapping(NamedTuple):
+    """How 16-bit pictures are mapped to 8 bits for a whole run (:func:`mono16_mapping`)."""
+
+    shift: int
+    """Right shift that brings the first picture's peak into 8 bits (used without a window)."""
+    window: tuple[int, int] | None
+    """[lo, hi) counts mapped linearly to 0-255, for pictures on a pedestal (None: the shift)."""
+    note: str
+    """How the pictures were mapped, for the run's notes."""
+
+    def apply(self, img16: np.ndarray) -> np.ndarray:
+        """The 8-bit picture."""
+        if self.window is None:
+            return (img16 >> self.shift).clip(0, 255).astype(np.uint8)
+        lo, hi = self.window
+        scaled = (img16.astype(np.float32) - np.float32(lo)) * np.float32(256.0 / (hi - lo))
+        return np.clip(scaled, 0, 255).astype(np.uint8)
+
+    def as_dict(self) -> dict[str, Any]:
+        """For the manifest (``from_dict`` reads it back)."""
+        return {"shift": self.shift, "window": None if self.window is None else list(self.window),
+                "note": self.note}
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> Mono16Mapping:
+        window = d.get("window")
+        return cls(int(d["shift"]), None if not window else (int(window[0]), int(window[1])),
+                   str(d.get("note") or ""))
+
+
+def mono16_mapping(img16: np.ndarray) -> Mono16Mapping:
     """The 8-bit mapping of 16-bit pictures, from the first one: (shift, window, note).
 
     Without a pedestal (:data:`PEDESTAL_RATIO`), the shift that brings the first frame's peak
@@ -257,14 +271,14 @@ def mono16_mapping(img16: np.ndarray) -> tuple[int, tuple[int, int] | None, str]
         p1 = p99 = 0
     spread = p99 - p1
     if spread <= 0 or p1 <= PEDESTAL_RATIO * spread:
-        return shift, None, (f"16-bit pictures shifted right by {shift} bits (fixed from the "
-                             f"first frame, peak {peak})")
+        return Mono16Mapping(shift, None, f"16-bit pictures shifted right by {shift} bits "
+                             f"(fixed from the first frame, peak {peak})")
     margin = max(round(PEDESTAL_MARGIN * spread), (256 - spread + 1) // 2)
     lo, hi = max(p1 - margin, 0), min(p99 + margin, 65536)
-    return shift, (lo, hi), (
+    return Mono16Mapping(shift, (lo, hi), (
         f"16-bit pictures on a pedestal (first frame: 1st-99th percentile {p1}-{p99} counts, "
         f"as a thermal camera's): counts {lo}-{hi} mapped linearly to 0-255, fixed from the "
-        f"first frame (a shift by {shift} bits would leave {spread >> shift} grey levels)")
+        f"first frame (a shift by {shift} bits would leave {spread >> shift} grey levels)"))
 
 
 NO_KEYFRAME = "no keyframe yet: a video's pictures are decoded from its first keyframe on"
