@@ -338,3 +338,30 @@ def test_a_recording_as_h264_video_keeps_its_stamps_and_calibration(tmp_path: Pa
     assert b.attrs["manifest"]["topics"]["camera"] == "/camera/video"
     assert b.attrs["manifest"]["intrinsics"]["K"] == a.attrs["manifest"]["intrinsics"]["K"]
     assert np.abs(b["mean_intensity"] - a["mean_intensity"]).max() < 1.0
+
+
+def test_stride_labels_read_each_gap_as_a_whole() -> None:
+    """At --stride 2 frame k is compared with frame k - 2: a turn or a plane holds only where
+    both frames of the gap carry it, a step anywhere in a fully labelled gap is a step, a
+    healthy gap is healthy, a frame alone keeps its own single-frame labels, and the first row
+    keeps only those and healthy. Runs of the same label are one episode."""
+    from validation.score import stride_labels
+
+    rec = {"labels": [[0, 3, "healthy"], [4, 4, "exposure_step"], [5, 7, "healthy"],
+                      [8, 12, "pure_rotation"], [9, 9, "feature_clustering"],
+                      [13, 13, "planar_degeneracy"]]}
+    frames = pd.DataFrame({"frame": [0, 2, 4, 6, 8, 10, 12, 14],
+                           "t_ns": [100 * k for k in (0, 2, 4, 6, 8, 10, 12, 14)]})
+    got = stride_labels(rec, frames, 2)
+    want = [(0, 200, "healthy"),            # frame 0 (first row), frame 2 (gap 1-2 healthy)
+            (400, 400, "exposure_step"),    # gap 3-4: healthy then a step
+            (600, 600, "healthy"),          # gap 5-6
+            (1000, 1200, "pure_rotation")]  # gaps 9-10 and 11-12; gap 7-8 is half healthy
+    assert list(got.itertuples(index=False, name=None)) == want
+    # frame 9's clustering is a frame alone: it is read only where frame 9 is analysed
+    odd = stride_labels(rec, pd.DataFrame({"frame": [1, 3, 5, 7, 9, 11, 13],
+                                           "t_ns": [1, 3, 5, 7, 9, 11, 13]}), 2)
+    conds = {c: (a, b) for a, b, c in odd.itertuples(index=False, name=None)}
+    assert conds["feature_clustering"] == (9, 9)
+    assert conds["pure_rotation"] == (9, 11)  # gaps 8-9 and 10-11
+    assert "planar_degeneracy" not in conds    # gap 12-13: rotation, then a plane

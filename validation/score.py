@@ -6,6 +6,8 @@
     python validation/score.py --data DIR --per-recording
     python validation/score.py --overrides try.toml   # a threshold change, tried on dev
     python validation/score.py --video 23           # every camera re-encoded as H.264 video
+    python validation/score.py --downscale 2        # every picture shrunk by 2
+    python validation/score.py --stride 2           # every 2nd frame: half the frame rate
 
 Runs ``frontdiag analyze`` (the Python API, default rules) on every recording of the chosen
 half listed in ``validation/manifest.json`` and built by ``validation/build.py``, scores each
@@ -44,6 +46,55 @@ from validation.build import DEFAULT_OUT, MANIFEST, load_manifest, output_path  
 
 CAMERA_CONDITIONS = tuple(c for c in CONDITIONS if c != "registration_degeneracy")
 
+SINGLE_FRAME = ("detection_failure", "feature_clustering")
+"""Labels of one frame alone (validation/README.md, "Labels"); the others compare a frame with
+the one before it."""
+HELD_OVER_A_GAP = ("pure_rotation", "planar_degeneracy", "repetitive_structure")
+"""Two-frame labels that hold between frames n apart when they hold between every pair of
+neighbours in between (a turn, a plane, a repeated pattern that lasts)."""
+
+
+def stride_labels(rec: dict[str, Any], frames: Any, n: int) -> Any:
+    """Labels for the rows of a run at ``--stride n``, from the manifest's frame labels: each
+    analysed frame k is compared with frame k - n, so its two-frame labels are those of the
+    frames k - n + 1 .. k together. A frame alone (``SINGLE_FRAME``) keeps its own labels;
+    ``HELD_OVER_A_GAP`` and ``healthy`` hold where every frame of the gap carries them; an
+    exposure step anywhere in a gap whose every frame is labelled is a step (a frame between
+    6 and 10 % in the gap leaves the row unlabelled); the first row, which has no frame
+    before it, keeps only single-frame labels and healthy. Consecutive rows with the same
+    label form one interval (one episode), as the manifest's own labels do."""
+    import pandas as pd
+
+    count = max((int(b) for _, b, _ in rec["labels"]), default=-1) + 1
+    per: list[set[str]] = [set() for _ in range(count)]
+    for a, b, cond in rec["labels"]:
+        for i in range(int(a), int(b) + 1):
+            per[i].add(str(cond))
+    rows: list[tuple[int, int, str]] = []
+    open_: dict[str, list[int]] = {}  # label -> [start, end] of the run the last row continued
+    first = True
+    for k, t in zip(frames["frame"].to_numpy(), frames["t_ns"].to_numpy(), strict=True):
+        k = int(k)
+        own = per[k] if k < count else set()
+        labs = {c for c in own if c in SINGLE_FRAME}
+        if first:
+            labs |= own & {"healthy"}
+            first = False
+        else:
+            gap = [per[i] if i < count else set() for i in range(max(k - n + 1, 0), k + 1)]
+            labs |= {c for c in HELD_OVER_A_GAP if all(c in g for g in gap)}
+            if all(gap) and any("exposure_step" in g for g in gap):
+                labs.add("exposure_step")
+            if all("healthy" in g for g in gap):
+                labs.add("healthy")
+        for c in [c for c in open_ if c not in labs]:
+            a, b = open_.pop(c)
+            rows.append((a, b, c))
+        for c in labs:
+            open_.setdefault(c, [int(t), int(t)])[1] = int(t)
+    rows += [(a, b, c) for c, (a, b) in open_.items()]
+    return pd.DataFrame(sorted(rows), columns=["t_start_ns", "t_end_ns", "condition"])
+
 
 def recordings(manifest: dict[str, Any], split: str, data: Path) -> list[tuple[str, Path]]:
     """(name, built path) of every recording of ``split`` (``dev``, ``report`` or ``all``)."""
@@ -56,12 +107,15 @@ def recordings(manifest: dict[str, Any], split: str, data: Path) -> list[tuple[s
 
 def score_recording(path: Path, conditions: Sequence[str] = CAMERA_CONDITIONS,
                     overrides: Path | None = None, video_crf: int | None = None,
-                    downscale: int = 1) -> EvalReport:
+                    downscale: int = 1, stride: int = 1,
+                    rec: dict[str, Any] | None = None) -> EvalReport:
     """Analyse one built recording with the default rules (thresholds changed by an
     ``overrides`` file, the format of ``frontdiag analyze --overrides``) and score it; with
     ``video_crf``, its camera re-encoded as H.264 at that CRF (validation/video.py); with
     ``downscale``, its pictures shrunk by that factor before the frontend sees them (as
-    ``frontdiag analyze --downscale``; the intrinsics scale with them)."""
+    ``frontdiag analyze --downscale``; the intrinsics scale with them); with ``stride``, every
+    ``stride``-th frame only (``frontdiag analyze --stride``), scored against the labels
+    :func:`stride_labels` derives from the manifest entry ``rec``."""
     import tempfile
 
     from frontdiag.api import analyze
@@ -80,9 +134,13 @@ def score_recording(path: Path, conditions: Sequence[str] = CAMERA_CONDITIONS,
                         downscale=downscale),
                 source=str(path))
         return score(frames, labels, conditions=conditions)
-    frames = normalise_frames(
-        analyze(path, rules_overrides=str(overrides) if overrides else None,
-                downscale=downscale), source=str(path))
+    table = analyze(path, rules_overrides=str(overrides) if overrides else None,
+                    downscale=downscale, stride=stride)
+    if stride > 1:
+        if rec is None:
+            raise ConfigError("--stride needs the recording's manifest entry")
+        labels = stride_labels(rec, table, stride)
+    frames = normalise_frames(table, source=str(path))
     return score(frames, labels, conditions=conditions)
 
 
@@ -104,11 +162,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--video", type=int, default=None, metavar="CRF",
                     help="score each recording's camera re-encoded as H.264 video at this "
                          "CRF (23: a camera streaming at a few Mbit/s; higher is coarser)")
+    ap.add_argument("--stride", type=int, default=1, metavar="N",
+                    help="score every N-th frame only (as frontdiag analyze --stride), against "
+                         "labels derived for that rate: do the verdicts hold at 1/N the rate?")
     ap.add_argument("--downscale", type=int, default=1, metavar="N",
                     help="score with every camera's pictures shrunk by N (as frontdiag "
                          "analyze --downscale): do the verdicts hold at another resolution?")
     a = ap.parse_args(argv)
-    recs = recordings(load_manifest(a.manifest), a.split, a.data)
+    manifest = load_manifest(a.manifest)
+    entries = {r["name"]: r for r in manifest["recordings"]}
+    if a.stride > 1 and a.video is not None:
+        raise ConfigError("--stride and --video together are not supported")
+    recs = recordings(manifest, a.split, a.data)
     if a.only:
         missing = set(a.only) - {n for n, _ in recs}
         if missing:
@@ -120,7 +185,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     for i, (name, path) in enumerate(recs, 1):
         print(f"[{i}/{len(recs)}] {name}", file=sys.stderr)
         reports[name] = score_recording(path, overrides=a.overrides, video_crf=a.video,
-                                        downscale=a.downscale)
+                                        downscale=a.downscale, stride=a.stride,
+                                        rec=entries[name])
     pooled = pool(reports.values())
     if a.json:
         print(json.dumps({"split": a.split, "pooled": pooled.as_dict(),
@@ -134,6 +200,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     video = "" if a.video is None else f", as H.264 video at CRF {a.video}"
     if a.downscale > 1:
         video += f", pictures shrunk {a.downscale}x"
+    if a.stride > 1:
+        video += f", every {a.stride}th frame"
     print(f"== {a.split}: {len(recs)} recordings, {pooled.frames} frames{video}")
     print(format_pooled(_labelled_only(pooled)))
     return 0
