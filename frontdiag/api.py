@@ -392,15 +392,13 @@ def short_focal_note(intr: Intrinsics, opts: AnalysisOptions) -> list[str]:
     """The note that FD-ROT-001 reads the motion over a span much longer than 0.33 s, where
     the focal length in pixels is well under the frontend's ``rot_span_focal_px``
     (docs/rules.md, "The span at low resolution")."""
-    from frontdiag.camera.frontend import CameraParams
+    from frontdiag.camera.frontend import CameraParams, span_seconds
 
     cp = opts.camera_params or CameraParams()
     f = float(intr.K[0, 0])
-    if cp.rot_span_s <= 0 or cp.rot_span_focal_px <= 0 or not 0 < f < cp.rot_span_focal_px:
+    span = span_seconds(cp, f)
+    if cp.rot_span_s <= 0 or span < SHORT_FOCAL_SPAN_RATIO * cp.rot_span_s:
         return []
-    if cp.rot_span_focal_px / f < SHORT_FOCAL_SPAN_RATIO:
-        return []
-    span = cp.rot_span_s * cp.rot_span_focal_px / f
     return [f"focal length {f:.0f} px, under {cp.rot_span_focal_px:g} px: FD-ROT-001 reads the "
             f"motion over {span:.2f} s rather than {cp.rot_span_s:g} s before calling it a turn "
             "or standing still, since parallax in pixels shrinks with the focal length while "

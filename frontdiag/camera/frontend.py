@@ -251,6 +251,16 @@ def _measurable(shape: tuple[int, ...]) -> bool:
     return len(shape) == 2 and min(shape) > 2 * EDGE + 2
 
 
+def span_seconds(p: CameraParams, fx: float | None) -> float:
+    """How long the span reading reads the motion over: ``rot_span_s``, and in proportion
+    longer where the focal length ``fx`` (px) is under ``rot_span_focal_px`` (module
+    docstring), so that the slowest motion it must see rises above localisation noise within
+    it at any resolution."""
+    if fx is None or fx <= 0 or p.rot_span_focal_px <= 0:
+        return p.rot_span_s
+    return p.rot_span_s * max(1.0, p.rot_span_focal_px / fx)
+
+
 class CameraFrontend:
     """Stateful per-recording frontend; ``process`` returns one metrics row per frame."""
 
@@ -317,14 +327,7 @@ class CameraFrontend:
         return (self._prev.t_ns - kf.view.t_ns) * 1e-9 < self._span_s()
 
     def _span_s(self) -> float:
-        """How long the span reading reads the motion over: ``rot_span_s``, and in proportion
-        longer where the focal length in pixels is under ``rot_span_focal_px`` (module
-        docstring), so that the slowest motion it must see rises above localisation noise
-        within it at any resolution."""
-        p = self.params
-        if self._K is None or p.rot_span_focal_px <= 0:
-            return p.rot_span_s
-        return p.rot_span_s * max(1.0, p.rot_span_focal_px / float(self._K[0, 0]))
+        return span_seconds(self.params, None if self._K is None else float(self._K[0, 0]))
 
     # ------------------------------------------------------------------ state (for windows)
     def state_key(self) -> tuple[int, int, int] | None:

@@ -53,6 +53,11 @@ class TopicChoice:
                             self.tf_static) if t]
 
 
+def _own_motion(cands: list[TopicInfo]) -> list[TopicInfo]:
+    """The candidates whose names do not say they are ground truth (``_NOT_ODOMETRY``)."""
+    return [t for t in cands if not any(k in t.topic.lower() for k in _NOT_ODOMETRY)]
+
+
 def candidates(topics: list[TopicInfo], types: tuple[str, ...]) -> list[TopicInfo]:
     return sorted((t for t in topics if t.msgtype in types), key=lambda t: t.topic)
 
@@ -132,7 +137,7 @@ def choose_topics(topics: list[TopicInfo], *, camera_topic: str | None = None,
                            candidates(topics, (ODOMETRY_TYPE, *POSE_TYPES)), topics)
             odom = picked.topic if picked else None
         else:
-            usable = [o for o in odoms if not any(k in o.topic.lower() for k in _NOT_ODOMETRY)]
+            usable = _own_motion(odoms)
             if len(usable) == 1:
                 odom = usable[0].topic
             elif len(usable) > 1:
@@ -148,8 +153,7 @@ def choose_topics(topics: list[TopicInfo], *, camera_topic: str | None = None,
             tf = next((t.topic for t in dyn if t.topic.strip("/") == "tf"),
                       dyn[0].topic if len(dyn) == 1 else None)
     if lid is not None and odom is None and tf is None and odom_topic is None:
-        poses = [t.topic for t in candidates(topics, POSE_TYPES)
-                 if not any(k in t.topic.lower() for k in _NOT_ODOMETRY)]
+        poses = [t.topic for t in _own_motion(candidates(topics, POSE_TYPES))]
         if poses:
             notes.append(f"no odometry for the LiDAR's motion prior; {', '.join(poses[:3])} "
                          "(poses) could give it: pass --odom-topic "
