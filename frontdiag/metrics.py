@@ -89,6 +89,11 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
        "share of query features refused by the ratio test although their second candidate is "
        "also a good match (within 50 of 256 bits): two plausible partners, the repetition share "
        "of ratio_reject_rate", "lower"),
+    _M("in_frame_twin_rate", "ratio", "camera",
+       "share of the frame's keypoints with a copy elsewhere in the same frame: another keypoint "
+       "beyond half an ORB patch whose descriptor is within the frame's median accepted match "
+       "distance / 0.8, so the ratio test refuses their matches; the scene repeating itself, "
+       "read in one image (frame rate and motion do not raise it)", "lower"),
     _M("ratio_reject_base", "ratio", "camera",
        "the recording's own ratio_reject_rate: lower quartile of the rows within 5 s either side "
        "(row itself, rows near an exposure step, matched over > 1/3 s or at/above the 0.70 line "

@@ -15,7 +15,12 @@ from frontdiag import metrics
 from frontdiag.camera import synthetic as S
 from frontdiag.camera.features import MIN_ENTROPY_POINTS, OrbExtractor
 from frontdiag.camera.frontend import CameraFrontend, CameraParams
-from frontdiag.camera.matching import hamming_matrix, match
+from frontdiag.camera.matching import (
+    copy_line_bits,
+    hamming_matrix,
+    in_frame_twin_rate,
+    match,
+)
 from frontdiag.records import CameraFrame, Intrinsics
 
 SIZE = (640, 480)
@@ -122,9 +127,40 @@ def test_repeated_texture_raises_the_ratio_reject_rate() -> None:
     tiled = np.tile(tile, (8, 8))[:480, :640]
     unique = S.texture(480, 640, seed=10)
     shift = np.array([[1, 0, 3], [0, 1, 2]], np.float32)
-    rr_tiled = run([tiled, cv2.warpAffine(tiled, shift, (640, 480))])[1]["ratio_reject_rate"]
-    rr_unique = run([unique, cv2.warpAffine(unique, shift, (640, 480))])[1]["ratio_reject_rate"]
+    tiled_row = run([tiled, cv2.warpAffine(tiled, shift, (640, 480))])[1]
+    unique_row = run([unique, cv2.warpAffine(unique, shift, (640, 480))])[1]
+    rr_tiled, rr_unique = tiled_row["ratio_reject_rate"], unique_row["ratio_reject_rate"]
     assert rr_tiled > 0.7 > rr_unique + 0.2  # ~85% on repetitive structure
+    # the cause, read in one image: most tiled features have a copy elsewhere in the view
+    assert tiled_row["in_frame_twin_rate"] > 0.5 and unique_row["in_frame_twin_rate"] < 0.05
+
+
+def test_in_frame_twins_are_copies_beyond_half_a_patch_within_the_line() -> None:
+    rng = np.random.default_rng(3)
+    des = rng.integers(0, 256, (6, 32), dtype=np.uint8)  # unrelated: ~128 bits apart
+    des[1] = des[0]
+    des[1, :2] ^= 0xFF            # 0 and 1: 16 bits apart, 100 px apart: copies
+    des[3] = des[2]              # 2 and 3: identical but 10 px apart at level 0: one corner
+    des[5] = des[4]
+    des[5, :4] ^= 0xFF            # 4 and 5: 32 bits apart, 100 px apart
+    xy = np.array([[10, 10], [110, 10], [10, 200], [20, 200], [300, 300], [400, 300]], float)
+    lv = np.zeros(6, np.int16)
+    assert in_frame_twin_rate(des, xy, lv, max_bits=20) == pytest.approx(2 / 6)
+    assert in_frame_twin_rate(des, xy, lv, max_bits=40) == pytest.approx(4 / 6)
+    # at pyramid level 4 half a patch is 15.5 x 1.2**4 = 32 px: 2 and 3 further apart still
+    # describe the same pixels
+    xy[3] = [35, 200]
+    assert in_frame_twin_rate(des, xy, lv, max_bits=0) == pytest.approx(2 / 6)
+    lv[2] = 4
+    assert in_frame_twin_rate(des, xy, lv, max_bits=0) == 0.0
+    assert np.isnan(in_frame_twin_rate(des, xy, lv, max_bits=float("nan")))
+    assert np.isnan(in_frame_twin_rate(des[:1], xy[:1], lv[:1], max_bits=40))
+
+
+def test_the_copy_line_is_the_typical_match_distance_over_the_ratio_capped() -> None:
+    assert copy_line_bits(36.0, 0.8) == pytest.approx(45.0)
+    assert copy_line_bits(64.0, 0.8) == pytest.approx(62.5)   # capped at 50 bits / 0.8
+    assert np.isnan(copy_line_bits(float("nan"), 0.8))
 
 
 def test_exposure_step_shows_in_gain_and_residual() -> None:

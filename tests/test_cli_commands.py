@@ -227,10 +227,11 @@ def test_explain_states_what_matching_did_on_a_frame_with_no_pose() -> None:
     from frontdiag.cli.explain import matching_facts
 
     row = {"n_keypoints": 1000, "ratio_reject_rate": 0.98, "ratio_ambiguous_rate": 0.03,
-           "n_matches": 13}
+           "n_matches": 13, "in_frame_twin_rate": 0.02}
     assert matching_facts(row, 1.0) == (
         "1000 keypoints; the ratio test refused 98% (3% with two close candidates, 95% with "
-        "none close); 13 matches kept; the previous frame is 1 s earlier")
+        "none close); 13 matches kept; 2% of the keypoints have a copy in the same view; the "
+        "previous frame is 1 s earlier")
     # what is missing is left out, not printed as nan
     assert matching_facts({"n_keypoints": 4, "n_matches": float("nan")}, None) == "4 keypoints"
 

@@ -103,7 +103,7 @@ from frontdiag.camera.geometry import (
     two_view,
     undistort_points,
 )
-from frontdiag.camera.matching import match
+from frontdiag.camera.matching import copy_line_bits, in_frame_twin_rate, match
 from frontdiag.camera.photometric import photometric
 from frontdiag.io.camera_info import CalibrationsBySize, fit_to_images
 from frontdiag.metrics import DEFAULT_FEATURE_BUDGET, keypoint_fill
@@ -227,7 +227,8 @@ def _row_template() -> dict[str, Any]:
         "occupied_cells": 0, "entropy_inliers_norm": NAN, "entropy_inliers_shared_norm": NAN,
         "n_coarse_keypoints": 0,
         "coarse_hull_share": NAN, "lit_share": NAN,
-        "n_putative": 0, "ratio_reject_rate": NAN, "ratio_ambiguous_rate": NAN, "n_matches": 0,
+        "n_putative": 0, "ratio_reject_rate": NAN, "ratio_ambiguous_rate": NAN,
+        "in_frame_twin_rate": NAN, "n_matches": 0,
         "ref_frame": -1, "n_ref_matches": 0, "tracked_share": NAN,
         "inliers_e": NAN, "inliers_h": NAN, "h_over_e": NAN, "inlier_ratio": NAN,
         "ransac_iters_required": NAN, "ransac_iters_run": NAN, "parallax_med_deg": NAN,
@@ -383,6 +384,9 @@ class CameraFrontend:
         m = match(cur.feats.des, prev.feats.des, p.ratio, p.mutual)
         row.update(n_putative=m.n_putative, ratio_reject_rate=m.ratio_reject_rate,
                    ratio_ambiguous_rate=m.ratio_ambiguous_rate, n_matches=len(m.query))
+        f = cur.feats
+        row["in_frame_twin_rate"] = in_frame_twin_rate(
+            f.des, f.xy, f.octave, copy_line_bits(m.d_accepted_med, p.ratio), p.scale_factor)
         cur.kf_idx[m.query] = prev.kf_idx[m.train]
         if p.relink_tracks and kf.view is not prev and len(kf.view.feats):
             self._relink(cur, kf.view)

@@ -59,6 +59,7 @@ class Matches:
     n_putative: int  # query features that had two candidates (the ratio test applies)
     n_ratio_rejected: int  # of those, how many failed d1 < ratio * d2
     n_ratio_ambiguous: int = 0  # of the rejected, how many had d2 <= GOOD_MATCH_BITS
+    d_accepted_med: float = float("nan")  # median best distance (bits) of the ratio-passed queries
 
     @property
     def ratio_reject_rate(self) -> float:
@@ -108,5 +109,48 @@ def match(q_des: np.ndarray, t_des: np.ndarray, ratio: float = 0.8,
             first.sort()
             q, t = q[first], t[first]
     ambiguous = ~passed & (d2 <= GOOD_MATCH_BITS)
+    d_acc = float(np.median(d1[passed])) if passed.any() else float("nan")
     return Matches(q, t, nq, int(nq - np.count_nonzero(passed)),
-                   int(np.count_nonzero(ambiguous)))
+                   int(np.count_nonzero(ambiguous)), d_acc)
+
+
+def copy_line_bits(d_accepted_med: float, ratio: float) -> float:
+    """The distance within which a copy in the same frame makes the ratio test refuse a typical
+    match: the frame's median accepted distance over the ratio, that distance capped at the
+    good-match distance (beyond it no candidate is a plausible partner, and a frame whose
+    accepted matches are that poor would count chance neighbours as copies). NaN with no
+    accepted match."""
+    return min(d_accepted_med, GOOD_MATCH_BITS) / ratio if np.isfinite(d_accepted_med) \
+        else float("nan")
+
+
+def in_frame_twin_rate(des: np.ndarray, xy: np.ndarray, octave: np.ndarray, max_bits: float,
+                       scale_factor: float = 1.2, patch_px: float = 31.0) -> float:
+    """Share of one frame's keypoints that have a copy elsewhere in the same frame: another
+    keypoint whose descriptor lies within ``max_bits`` of theirs, further away than half an ORB
+    patch at the coarser of the two pyramid levels (closer ones describe overlapping pixels: the
+    same corner found again, not a copy).
+
+    With ``max_bits`` the frame's typical accepted match distance over the ratio (d / ratio),
+    such a keypoint's true match in the next frame is refused by the ratio test whenever its copy
+    is seen there too: it is the scene repeating itself, read in one image, so neither the frame
+    rate nor the motion between the frames enters it except through that typical distance.
+    NaN with fewer than two keypoints or no distance line."""
+    n = len(des)
+    if n < 2 or not np.isfinite(max_bits):
+        return float("nan")
+    from scipy.spatial import cKDTree
+
+    d = hamming_matrix(des, des)
+    np.fill_diagonal(d, N_BITS + 1)
+    lv = np.asarray(octave, np.float64)
+    radius = 0.5 * patch_px * scale_factor ** lv  # (N,) half a patch at each keypoint's level
+    pairs = cKDTree(np.asarray(xy, np.float64)).query_pairs(float(radius.max()),
+                                                            output_type="ndarray")
+    if len(pairs):
+        i, j = pairs[:, 0], pairs[:, 1]
+        gap = np.hypot(*(np.asarray(xy, np.float64)[i] - np.asarray(xy, np.float64)[j]).T)
+        same = gap < np.maximum(radius[i], radius[j])
+        d[i[same], j[same]] = N_BITS + 1
+        d[j[same], i[same]] = N_BITS + 1
+    return float(np.count_nonzero(d.min(axis=1) <= max_bits)) / n

@@ -54,6 +54,9 @@ def matching_facts(row: Any, gap_s: float | None) -> str:
         parts.append(f"the ratio test refused {rej:.0%}{close}")
     if kept == kept:
         parts.append(f"{kept:.0f} matches kept")
+    copies = num("in_frame_twin_rate")
+    if copies == copies:
+        parts.append(f"{copies:.0%} of the keypoints have a copy in the same view")
     if gap_s is not None and gap_s == gap_s:
         parts.append(f"the previous frame is {gap_s:.3g} s earlier")
     return "; ".join(parts)
