@@ -170,7 +170,7 @@ def test_without_out_it_says_nothing_was_saved(tmp_path: Path,
 
 def test_junit_suite_is_the_recording_and_warn_findings_are_not_passes(tmp_path: Path,
                                                                        ruleset) -> None:
-    res = evaluate(frames(100, {range(10, 20): {"ratio_reject_rate": 0.85}}), ruleset)
+    res = evaluate(frames(100, {range(10, 20): {"ratio_reject_rate": 0.85, "in_frame_twin_rate": 0.3}}), ruleset)
     g = gate(res, fail_on="fail")
     root = ET.parse(write_junit(tmp_path / "r.xml", res, g, suite="aisle7.mcap")).getroot()
     assert root.find("testsuite").get("name") == "aisle7.mcap"

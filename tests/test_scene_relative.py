@@ -49,19 +49,65 @@ def test_rolling_baseline_leaves_out_the_row_excluded_rows_and_thin_windows() ->
 
 # --- repetition against the scene's own rejection --------------------------------------------
 
+def _jump(copies: float) -> dict[int, dict[str, float]]:
+    """A scene at 0.30 rejection jumping to 0.62 for 50 frames, those frames with ``copies``
+    of their features repeated within the view."""
+    rej = _noisy(300, 0.30, 0.03, seed=1)
+    rej[150:200] = _noisy(50, 0.62, 0.02, seed=2)
+    change = {i: {"ratio_reject_rate": float(r)} for i, r in enumerate(rej)}
+    for i in range(150, 200):
+        change[i]["in_frame_twin_rate"] = copies
+    return change
+
+
 def test_a_rejection_jump_above_the_scene_at_unchanged_features_is_repetition(ruleset) -> None:
     """0.30 -> 0.62: under the absolute 0.70 line, but twice the scene's own level with the
     feature count unchanged."""
-    rej = _noisy(300, 0.30, 0.03, seed=1)
-    rej[150:200] = _noisy(50, 0.62, 0.02, seed=2)
-    res = evaluate(frames(300, {i: {"ratio_reject_rate": float(r)} for i, r in enumerate(rej)}),
-                   ruleset)
+    res = evaluate(frames(300, _jump(copies=0.25)), ruleset)
     rep = hits(res, "repetitive_structure")
     assert rep[152:198].all() and not rep[:145].any() and not rep[205:].any()
     assert res.table["ratio_reject_base"].iloc[170] == pytest.approx(0.30, abs=0.02)
     lines = next(e for e in explain_row(res, 170) if e.rule.id == "FD-REP-001").check_lines
+    assert any(ln.startswith("in_frame_twin_rate 25% >= 5%: the scene repeats itself")
+               for ln in lines)
     assert any("scene baseline" in ln and "repetition signature" in ln for ln in lines)
     assert any(ln.startswith("absolute:") for ln in lines)
+
+
+def test_a_rejection_jump_without_copies_in_the_view_is_not_repetition(ruleset) -> None:
+    """The same jump, but the frames show no copies of their own features (a faster motion,
+    a coarser stream): the ratio test refused features that nothing resembles."""
+    res = evaluate(frames(300, _jump(copies=0.04)), ruleset)
+    assert not hits(res, "repetitive_structure").any()
+    lines = next(e for e in explain_row(res, 170) if e.rule.id == "FD-REP-001").check_lines
+    assert any("repetition signature" in ln for ln in lines)
+    assert any(ln.startswith("in_frame_twin_rate 4% < 5%") and "ruled out" in ln
+               for ln in lines)
+
+
+def test_a_long_wide_baseline_stretch_is_not_one_long_aisle(ruleset) -> None:
+    """A drive read every second frame (5 Hz): rejection 0.75-0.85 on every frame, no level of
+    its own below the absolute line, few copies in the view (0.00-0.05). The simulator's aisle
+    at 320x240 rejects as much with 0.06-0.11 of its features repeated in the view."""
+    rej = _noisy(150, 0.80, 0.05, seed=7)
+    twins = _noisy(150, 0.025, 0.025, seed=8)
+    drive = evaluate(frames(150, {i: {"ratio_reject_rate": float(r),
+                                      "in_frame_twin_rate": float(c)}
+                                  for i, (r, c) in enumerate(zip(rej, twins, strict=True))},
+                            rate_hz=5), ruleset)
+    assert np.isnan(drive.table["ratio_reject_base"]).all()
+    assert not hits(drive, "repetitive_structure").any()
+    aisle = evaluate(frames(150, {i: {"ratio_reject_rate": float(r),
+                                      "in_frame_twin_rate": float(c) + 0.06}
+                                  for i, (r, c) in enumerate(zip(rej, twins, strict=True))},
+                            rate_hz=5), ruleset)
+    assert hits(aisle, "repetitive_structure")[5:].all()
+
+
+def test_a_table_without_the_copies_column_is_read_as_before(ruleset) -> None:
+    """A table written before in_frame_twin_rate existed: the rule reads the rejection alone."""
+    t = frames(120, {range(120): {"ratio_reject_rate": 0.82}}).drop(columns="in_frame_twin_rate")
+    assert hits(evaluate(t, ruleset), "repetitive_structure")[5:].all()
 
 
 def test_a_scene_that_always_rejects_much_is_not_repetition(ruleset) -> None:
@@ -84,7 +130,8 @@ def test_a_rejection_jump_with_features_lost_is_not_repetition(ruleset) -> None:
 
 
 def test_a_recording_that_is_one_long_aisle_reads_the_absolute_line(ruleset) -> None:
-    res = evaluate(frames(120, {range(120): {"ratio_reject_rate": 0.82}}), ruleset)
+    res = evaluate(frames(120, {range(120): {"ratio_reject_rate": 0.82,
+                                                  "in_frame_twin_rate": 0.3}}), ruleset)
     assert np.isnan(res.table["ratio_reject_base"]).all()
     assert hits(res, "repetitive_structure")[5:].all()
 

@@ -166,7 +166,8 @@ def test_healthy_table_has_no_findings(ruleset) -> None:
 
 def test_matching_table_repetitive_vs_detection_vs_exposure(ruleset) -> None:
     t = frames(60, {
-        range(5, 15): {"n_keypoints": 1000, "ratio_reject_rate": 0.85},      # repetitive aisle
+        range(5, 15): {"n_keypoints": 1000, "ratio_reject_rate": 0.85,       # repetitive aisle
+                        "in_frame_twin_rate": 0.3},
         range(25, 35): {"n_keypoints": 120, "ratio_reject_rate": 0.30},      # dark / blank
         40: {"d_mean_intensity": 24.0, "photo_residual_med": 22.0, "ratio_reject_rate": 0.55,
              "affine_gain": 1.2},                                            # exposure step
@@ -186,7 +187,8 @@ def test_matching_table_repetitive_vs_detection_vs_exposure(ruleset) -> None:
 def test_repetition_is_read_between_frames_of_a_tracking_rate(ruleset, rate_hz, expected) -> None:
     # ~85% rejection at unchanged feature count: repetition at 30 Hz and at the 3 Hz of a
     # relocalisation path; frames 1 s apart reject that much from viewpoint change alone
-    t = frames(20, {range(5, 15): {"ratio_reject_rate": 0.85}}, rate_hz=rate_hz)
+    t = frames(20, {range(5, 15): {"ratio_reject_rate": 0.85, "in_frame_twin_rate": 0.3}},
+               rate_hz=rate_hz)
     res = evaluate(t, ruleset)
     assert all(("repetitive_structure" in conds(res, f)) == expected for f in range(7, 15))
 
@@ -210,7 +212,8 @@ def test_where_no_level_forms_nearby_the_baseline_widens_to_the_recordings_own(r
     lines = next(e for e in explain_row(res, 250) if e.rule.id == "FD-REP-001").check_lines
     assert any("the window widened to the nearest level" in ln for ln in lines)
     aisle = evaluate(frames(100, {range(100): {"ratio_reject_rate": 0.85,
-                                               "ratio_ambiguous_rate": 0.03}}, rate_hz=10.0),
+                                               "ratio_ambiguous_rate": 0.03,
+                                               "in_frame_twin_rate": 0.3}}, rate_hz=10.0),
                      ruleset)
     assert np.isnan(aisle.table["ratio_reject_base"]).all()
     assert all("repetitive_structure" in conds(aisle, f) for f in range(5, 95))
@@ -700,7 +703,8 @@ def test_two_clean_rows_split_episodes(ruleset) -> None:
 
 
 def test_episodes_are_per_topic_and_worst_first(ruleset) -> None:
-    a = frames(40, {range(5, 10): {"ratio_reject_rate": 0.9}}, topic="/cam_left", rate_hz=15)
+    a = frames(40, {range(5, 10): {"ratio_reject_rate": 0.9,
+                                   "in_frame_twin_rate": 0.3}}, topic="/cam_left", rate_hz=15)
     b = frames(40, {range(20, 23): {"n_keypoints": 90}, range(30, 38): {"n_keypoints": 90}},
                topic="/cam_right")
     res = evaluate(pd.concat([a, b], ignore_index=True), ruleset)

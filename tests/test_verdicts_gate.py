@@ -30,7 +30,7 @@ def ruleset():
 @pytest.fixture
 def warn_only(ruleset):
     """A run whose only finding is a warn-level repetitive-structure episode."""
-    return evaluate(frames(100, {range(10, 20): {"ratio_reject_rate": 0.85}}), ruleset)
+    return evaluate(frames(100, {range(10, 20): {"ratio_reject_rate": 0.85, "in_frame_twin_rate": 0.3}}), ruleset)
 
 
 @pytest.fixture
@@ -170,7 +170,7 @@ def test_baseline_ignores_improvements(tmp_path, ruleset) -> None:
 
 def test_baseline_fails_on_a_condition_share_regression(tmp_path, ruleset) -> None:
     base = _save(tmp_path, "base", frames(100), ruleset)
-    now = frames(100, {range(40, 50): {"ratio_reject_rate": 0.9}})
+    now = frames(100, {range(40, 50): {"ratio_reject_rate": 0.9, "in_frame_twin_rate": 0.3}})
     g = gate(evaluate(now, ruleset), fail_on="never", baseline=base)
     assert any("repetitive_structure on 10.0% of frames, was 0.0%" in r for r in g.reasons)
 
@@ -178,10 +178,10 @@ def test_baseline_fails_on_a_condition_share_regression(tmp_path, ruleset) -> No
 def test_baseline_without_verdict_columns_is_evaluated(tmp_path, ruleset) -> None:
     d = tmp_path / "raw"
     d.mkdir()
-    frames(100, {range(40, 50): {"ratio_reject_rate": 0.9}}).to_parquet(d / "frames.parquet")
-    same = frames(100, {range(40, 50): {"ratio_reject_rate": 0.9}})
+    frames(100, {range(40, 50): {"ratio_reject_rate": 0.9, "in_frame_twin_rate": 0.3}}).to_parquet(d / "frames.parquet")
+    same = frames(100, {range(40, 50): {"ratio_reject_rate": 0.9, "in_frame_twin_rate": 0.3}})
     assert gate(evaluate(same, ruleset), fail_on="never", baseline=d).exit_code == 0
-    more = frames(100, {range(40, 60): {"ratio_reject_rate": 0.9}})
+    more = frames(100, {range(40, 60): {"ratio_reject_rate": 0.9, "in_frame_twin_rate": 0.3}})
     assert gate(evaluate(more, ruleset), fail_on="never", baseline=d).exit_code == 1
 
 
@@ -248,7 +248,7 @@ def test_episodes_parquet_round_trips(tmp_path, failing, ruleset) -> None:
 
 
 def test_console_summary_lists_episodes_worst_first_with_commands(warn_only, ruleset) -> None:
-    res = evaluate(frames(100, {range(10, 20): {"ratio_reject_rate": 0.85},
+    res = evaluate(frames(100, {range(10, 20): {"ratio_reject_rate": 0.85, "in_frame_twin_rate": 0.3},
                                 range(60, 63): {"n_keypoints": 90}}), ruleset)
     buf = io.StringIO()
     con = Console(file=buf, width=200, color_system=None)

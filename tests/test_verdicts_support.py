@@ -11,7 +11,7 @@ HEALTHY_CAMERA: dict[str, Any] = dict(  # keypoint_fill is derived: budget 1000 
     inliers_e=300, inliers_h=126, h_over_e=0.42, inlier_ratio=0.85, ransac_iters_required=12,
     ransac_iters_run=40, parallax_med_deg=2.1, rot_deg=1.0, pose_info_cond=50.0,
     mean_intensity=120.0, d_mean_intensity=0.5, photo_residual_med=4.0, affine_gain=1.0,
-    status="ok")
+    in_frame_twin_rate=0.02, status="ok")
 HEALTHY_LIDAR: dict[str, Any] = dict(
     n_points=20000, icp_fitness=0.95, icp_rmse_m=0.03, lidar_eig_min=2400.0, lidar_cond=35.0,
     lidar_weak_dir="none", status="ok")

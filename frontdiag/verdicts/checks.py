@@ -181,10 +181,21 @@ def _relative_repetition(df: pd.DataFrame, p: Params) -> tuple[np.ndarray, np.nd
     return has, jump
 
 
+def _copies_in_frame(df: pd.DataFrame, p: Params) -> np.ndarray:
+    """Rows whose scene repeats itself within the frame (in_frame_twin_rate at or above
+    twins_in_frame); every row where the rule or the table does not carry the reading."""
+    if "twins_in_frame" not in p or "in_frame_twin_rate" not in df.columns:
+        return np.ones(len(df), bool)
+    with np.errstate(invalid="ignore"):
+        return col(df, "in_frame_twin_rate") >= p["twins_in_frame"]
+
+
 def _matching_table(df: pd.DataFrame, p: Params) -> np.ndarray:
     """Features intact, outside an exposure step's recovery and matched at a tracking rate;
     then the rejection read against the scene's own level where the recording has one (the
-    absolute line where it has none: a recording that is one long aisle)."""
+    absolute line where it has none: a recording that is one long aisle). Whichever reading
+    fires, the frame must also show copies of its own features (in_frame_twin_rate): the
+    rejection says that the ratio test refused, the copies say why."""
     fill = col(df, "keypoint_fill")
     rej = col(df, "ratio_reject_rate")
     with np.errstate(invalid="ignore"):
@@ -203,7 +214,7 @@ def _matching_table(df: pd.DataFrame, p: Params) -> np.ndarray:
         with np.errstate(invalid="ignore"):
             twins = col(df, "ratio_ambiguous_rate") >= p["ambiguous_repetitive"]
             hit |= (fill >= p["fill_floor"]) & twins
-    return hit
+    return hit & _copies_in_frame(df, p)
 
 
 def _matching_unread(df: pd.DataFrame, p: Params) -> tuple[np.ndarray, str]:
@@ -253,6 +264,19 @@ def _relative_rejection_words(row: Mapping[str, Any], p: Params) -> str:
     return words + ": at the scene's own level, repetitive_structure ruled out"
 
 
+def _copies_words(twin: float, line: float) -> str:
+    if np.isnan(twin):
+        return ("in_frame_twin_rate not computable (no match accepted to set its distance line): "
+                "no evidence that the scene repeats itself, so repetitive_structure is not read")
+    if twin >= line:
+        return (f"in_frame_twin_rate {twin:.0%} >= {line:.0%}: the scene repeats itself (that "
+                "share of the frame's features has a copy elsewhere in the same view, as close "
+                "as the frame's matches are to theirs, so the ratio test refuses their matches)")
+    return (f"in_frame_twin_rate {twin:.0%} < {line:.0%}: few features have a copy in the same "
+            "view, so the ratio test's refusals are not repetition's (a wide baseline, blur or "
+            "compression refuse features that nothing resembles): repetitive_structure ruled out")
+
+
 def _matching_table_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     kp, fill, rej = (_v(row, m) for m in ("n_keypoints", "keypoint_fill", "ratio_reject_rate"))
     dm = _v(row, "d_mean_intensity")
@@ -269,7 +293,7 @@ def _matching_table_explain(row: Mapping[str, Any], p: Params) -> list[str]:
         out.append("ratio_reject_rate not computable (no previous frame)")
     elif rej >= p["reject_repetitive"]:
         out.append(f"absolute: ratio_reject_rate {rej:.0%} >= {p['reject_repetitive']:.0%}: the "
-                   "ratio test refuses ambiguous candidates (repetitive ~85%)")
+                   "ratio test refuses as much as on repetitive structure (~85%)")
     else:
         out.append(f"absolute: ratio_reject_rate {rej:.0%} < {p['reject_repetitive']:.0%} "
                    "(healthy ~30%, exposure step ~55%)")
@@ -286,6 +310,8 @@ def _matching_table_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                       "are of features nothing resembles closely (viewpoint change, blur, "
                       "compression, or a repeated object seen in perspective, whose copies "
                       "differ with distance and angle), and the rejection lines above decide"))
+    if "twins_in_frame" in p:
+        out.append(_copies_words(_v(row, "in_frame_twin_rate"), p["twins_in_frame"]))
     if not np.isnan(dm) and abs(dm) > p["dmean_step"]:
         out.append(f"|d_mean_intensity| {abs(dm):.1f} > {p['dmean_step']:g}: an exposure step; "
                    f"a rejection spike within {p['recovery_frames']:g} frames is the step's")
@@ -1196,19 +1222,19 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
           "with the features intact (not ~120 features: detection failure) and not inside the "
           "2-3 frames after an exposure step (~55%, recovering)", "frame", "camera",
           ("n_keypoints", "keypoint_fill", "ratio_reject_rate", "d_mean_intensity",
-           "ratio_ambiguous_rate"),
+           "ratio_ambiguous_rate", "in_frame_twin_rate"),
           {"fill_floor": _NUM, "reject_repetitive": _NUM, "dmean_step": _NUM,
            "recovery_frames": _NUM, "max_interval_s": _NUM, **_BASELINE_PARAMS,
            "reject_excess": _NUM, "baseline_sigmas": _NUM, "keypoints_kept": _NUM,
-           "ambiguous_repetitive": _NUM, "baseline_widen_max_s": _NUM},
+           "ambiguous_repetitive": _NUM, "baseline_widen_max_s": _NUM, "twins_in_frame": _NUM},
           {"n_keypoints": "min", "ratio_reject_rate": "max"},
           {"fill_floor": "keypoint_fill", "reject_repetitive": "ratio_reject_rate",
            "dmean_step": "d_mean_intensity", "reject_excess": "ratio_reject_base",
-           "ambiguous_repetitive": "ratio_ambiguous_rate"},
+           "ambiguous_repetitive": "ratio_ambiguous_rate", "twins_in_frame": "in_frame_twin_rate"},
           frame=_matching_table, explain=_matching_table_explain, context=_matching_context,
           optional=frozenset({"max_interval_s", "reject_excess", "baseline_sigmas",
                               "keypoints_kept", "ambiguous_repetitive", "baseline_widen_max_s",
-                              *_BASELINE_PARAMS}),
+                              "twins_in_frame", *_BASELINE_PARAMS}),
           unread=_matching_unread, baseline=_matching_baseline),
     Check("exposure_step", "a jump of mean intensity with the photometric residual "
           "jumping with it, clean before and clean again within 2-3 frames",
