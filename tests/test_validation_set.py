@@ -365,3 +365,28 @@ def test_stride_labels_read_each_gap_as_a_whole() -> None:
     assert conds["feature_clustering"] == (9, 9)
     assert conds["pure_rotation"] == (9, 11)  # gaps 8-9 and 10-11
     assert "planar_degeneracy" not in conds    # gap 12-13: rotation, then a plane
+
+
+def test_stride_labels_measure_the_exposure_of_each_gap_on_the_pair() -> None:
+    """Where the manifest lists the label aid's brightness ratios across each gap, the README's
+    criterion is read on the pair: a ramp of healthy frames 12 % over the gap is a step, 8 %
+    is neither a step nor healthy, an unlisted gap (under 6 %) of healthy frames is healthy, and
+    a step undone within its gap is no step; a pair with no reading falls back on the frames'
+    own labels."""
+    from validation.score import stride_labels
+
+    rec = {"labels": [[0, 11, "healthy"], [12, 12, "exposure_step"], [13, 15, "healthy"]],
+           "gap_brightness": {"2": [[4, 1.12], [6, 0.92], [8, None]]}}
+    frames = pd.DataFrame({"frame": list(range(0, 16, 2)), "t_ns": list(range(0, 16, 2))})
+    got = list(stride_labels(rec, frames, 2).itertuples(index=False, name=None))
+    assert got == [(0, 2, "healthy"),          # frame 0 (first row), gap 1-2 unlisted
+                   (4, 4, "exposure_step"),    # gap 3-4: healthy frames, 12 % brighter
+                   (8, 10, "healthy"),         # gap 5-6 at 8 %: neither; 7-8 no reading
+                   (14, 14, "healthy")]        # gap 13-14
+    # gap 11-12 is unlisted (under 6 %): the step labelled at frame 12 does not show across
+    # the pair, and the gap is not all healthy either, so frame 12 carries nothing
+    assert all(c != "exposure_step" or a != 12 for a, _, c in got)
+    # without measurements for this stride the frames' own labels decide, as before
+    del rec["gap_brightness"]
+    old = list(stride_labels(rec, frames, 2).itertuples(index=False, name=None))
+    assert (12, 12, "exposure_step") in old and (4, 4, "exposure_step") not in old

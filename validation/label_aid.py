@@ -2,6 +2,16 @@
 consecutive frames of a built validation recording.
 
     python validation/label_aid.py [--unclipped] /work/valdata/dev/churchill_print [more...]
+    python validation/label_aid.py --stride 2 /work/valdata/dev/kitti02_road.mcap
+    python validation/label_aid.py --stride 2 --write-manifest   # every built recording
+
+With ``--stride N`` each frame is compared with the frame N before it, the pair that
+``frontdiag analyze --stride N`` compares. A gain that ramps 3-5 % a frame is under the step
+line between neighbours and over it across two frames, so the labels of a gap cannot be derived
+from those of its frames alone; ``--write-manifest`` stores, per recording, the gaps that
+measure at least 6 % brighter or darker, or give no reading (``gap_brightness`` in
+validation/manifest.json), and ``validation/score.py --stride N`` applies the exposure
+criterion of the README to those pairs.
 
 Per consecutive pair: OpenCV's own ORB (2000 features, not frontdiag's extractor), brute-force
 Hamming matches with Lowe's ratio test (0.8), verified by a fundamental matrix (USAC MAGSAC,
@@ -18,17 +28,24 @@ patches hold a saturated pixel).
 
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 
-from frontdiag.io.readers import open_recording
-from frontdiag.io.topics import choose_topics
-from frontdiag.runner import iter_camera_frames
+HERE = Path(__file__).resolve().parent
+if str(HERE.parent) not in sys.path:
+    sys.path.insert(0, str(HERE.parent))
+
+from frontdiag.io.readers import open_recording  # noqa: E402
+from frontdiag.io.topics import choose_topics  # noqa: E402
+from frontdiag.runner import iter_camera_frames  # noqa: E402
 
 HALF = 4  # 9x9 patches
+MIN_VERIFIED = 30  # a ratio resting on fewer verified matches is not used
 
 
 def patch_means(gray: np.ndarray, xy: np.ndarray) -> np.ndarray:
@@ -72,9 +89,71 @@ def pair_ratio(a: np.ndarray, b: np.ndarray, unclipped: bool = False) -> tuple[f
     return float(np.median(mb[keep] / ma[keep])), int(ok.sum())
 
 
+GAP_LISTED = 0.06
+"""Gaps stored in the manifest: at least this much brighter or darker (the README's lower
+exposure line; under it a gap of healthy frames is healthy)."""
+
+
+def gap_ratios(path: Path, n: int, unclipped: bool = False) -> list[tuple[int, float, int]]:
+    """(frame k, brightness ratio of frame k over frame k - n, verified matches) for every k."""
+    out = []
+    with open_recording(Path(path)) as rec:
+        ch = choose_topics(rec.topics, use_lidar=False)
+        if ch.camera is None:
+            return out
+        back: list[np.ndarray] = []
+        for f in iter_camera_frames(rec, ch.camera, ch.camera_type):
+            if len(back) == n:
+                r, m = pair_ratio(back[0], f.gray, unclipped)
+                out.append((f.index, r, m))
+                back.pop(0)
+            back.append(f.gray)
+    return out
+
+
+def listed_gaps(ratios: list[tuple[int, float, int]]) -> list[list[Any]]:
+    """The manifest's entries: [k, ratio] for the gaps at least GAP_LISTED brighter or darker,
+    [k, null] for those with no reading (too few verified matches)."""
+    out: list[list[Any]] = []
+    for k, r, m in ratios:
+        if not np.isfinite(r) or m < MIN_VERIFIED:
+            out.append([k, None])
+        elif abs(r - 1.0) >= GAP_LISTED:
+            out.append([k, round(r, 4)])
+    return out
+
+
+def write_manifest(n: int, data: Path, manifest: Path) -> None:
+    from validation.build import load_manifest, output_path
+
+    m = load_manifest(manifest)
+    for rec in m["recordings"]:
+        path = output_path(data, rec)
+        gaps = listed_gaps(gap_ratios(path, n))
+        rec.setdefault("gap_brightness", {})[str(n)] = gaps
+        print(f"{rec['name']}: {len(gaps)} gaps listed", flush=True)
+    manifest.write_text(json.dumps(m, indent=1) + "\n")
+
+
 def main(argv: list[str]) -> int:
     unclipped = "--unclipped" in argv
+    n = 1
+    if "--stride" in argv:
+        i = argv.index("--stride")
+        n = int(argv[i + 1])
+        argv = argv[:i] + argv[i + 2:]
+    if "--write-manifest" in argv:
+        from validation.build import DEFAULT_OUT, MANIFEST
+
+        write_manifest(n, DEFAULT_OUT, MANIFEST)
+        return 0
     paths = [a for a in argv if a != "--unclipped"]
+    if n > 1:
+        for p in paths:
+            for k, r, m in gap_ratios(Path(p), n, unclipped):
+                print(f"{Path(p).name}  frame {k - n:3d} -> {k:3d}  ratio {r:6.3f}  ({m} "
+                      "verified matches)")
+        return 0
     for p in paths:
         with open_recording(Path(p)) as rec:
             ch = choose_topics(rec.topics, use_lidar=False)

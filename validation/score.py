@@ -54,18 +54,41 @@ HELD_OVER_A_GAP = ("pure_rotation", "planar_degeneracy", "repetitive_structure")
 neighbours in between (a turn, a plane, a repeated pattern that lasts)."""
 
 
+EXPOSURE_STEP_CHANGE = 0.10
+"""validation/README.md's exposure criterion: the same surfaces at least 10 % brighter or darker
+is a step; 6-10 % is left unlabelled (neither a step nor healthy)."""
+EXPOSURE_UNLABELLED_CHANGE = 0.06
+
+
+def _gap_change(measured: dict[int, float | None] | None, k: int) -> float | None:
+    """|ratio - 1| of the pair (k - n, k) as the label aid measured it (validation/label_aid.py,
+    the manifest's ``gap_brightness``: gaps not listed measured under 6 %), or None where the
+    recording has no measurement for this stride or the pair gave no reading."""
+    if measured is None:
+        return None
+    if k not in measured:
+        return 0.0
+    r = measured[k]
+    return None if r is None else abs(float(r) - 1.0)
+
+
 def stride_labels(rec: dict[str, Any], frames: Any, n: int) -> Any:
     """Labels for the rows of a run at ``--stride n``, from the manifest's frame labels: each
     analysed frame k is compared with frame k - n, so its two-frame labels are those of the
     frames k - n + 1 .. k together. A frame alone (``SINGLE_FRAME``) keeps its own labels;
-    ``HELD_OVER_A_GAP`` and ``healthy`` hold where every frame of the gap carries them; an
-    exposure step anywhere in a gap whose every frame is labelled is a step (a frame between
-    6 and 10 % in the gap leaves the row unlabelled); the first row, which has no frame
+    ``HELD_OVER_A_GAP`` and ``healthy`` hold where every frame of the gap carries them. The
+    exposure of a gap is measured on the pair itself where the manifest has the label aid's
+    ``gap_brightness`` for stride n (a ramp of 3-5 % a frame is under the step line between
+    neighbours and over it across the gap): at least 10 % brighter or darker is a step, 6-10 %
+    leaves the row neither a step nor healthy. Without a measurement, an exposure step anywhere
+    in a gap whose every frame is labelled is a step. The first row, which has no frame
     before it, keeps only single-frame labels and healthy. Consecutive rows with the same
     label form one interval (one episode), as the manifest's own labels do."""
     import pandas as pd
 
     count = max((int(b) for _, b, _ in rec["labels"]), default=-1) + 1
+    listed = rec.get("gap_brightness", {}).get(str(n))
+    measured = None if listed is None else {int(k): r for k, r in listed}
     per: list[set[str]] = [set() for _ in range(count)]
     for a, b, cond in rec["labels"]:
         for i in range(int(a), int(b) + 1):
@@ -83,10 +106,17 @@ def stride_labels(rec: dict[str, Any], frames: Any, n: int) -> Any:
         else:
             gap = [per[i] if i < count else set() for i in range(max(k - n + 1, 0), k + 1)]
             labs |= {c for c in HELD_OVER_A_GAP if all(c in g for g in gap)}
-            if all(gap) and any("exposure_step" in g for g in gap):
-                labs.add("exposure_step")
-            if all("healthy" in g for g in gap):
-                labs.add("healthy")
+            change = _gap_change(measured, k)
+            if change is None:  # not measured: from the frames' own labels
+                if all(gap) and any("exposure_step" in g for g in gap):
+                    labs.add("exposure_step")
+                if all("healthy" in g for g in gap):
+                    labs.add("healthy")
+            else:  # the README's exposure criterion, on the pair itself
+                if change >= EXPOSURE_STEP_CHANGE:
+                    labs.add("exposure_step")
+                if change < EXPOSURE_UNLABELLED_CHANGE and all("healthy" in g for g in gap):
+                    labs.add("healthy")
         for c in [c for c in open_ if c not in labs]:
             a, b = open_.pop(c)
             rows.append((a, b, c))
