@@ -139,18 +139,24 @@ def in_frame_twin_rate(des: np.ndarray, xy: np.ndarray, octave: np.ndarray, max_
     n = len(des)
     if n < 2 or not np.isfinite(max_bits):
         return float("nan")
-    from scipy.spatial import cKDTree
-
     d = hamming_matrix(des, des)
     np.fill_diagonal(d, N_BITS + 1)
-    lv = np.asarray(octave, np.float64)
-    radius = 0.5 * patch_px * scale_factor ** lv  # (N,) half a patch at each keypoint's level
-    pairs = cKDTree(np.asarray(xy, np.float64)).query_pairs(float(radius.max()),
-                                                            output_type="ndarray")
-    if len(pairs):
-        i, j = pairs[:, 0], pairs[:, 1]
-        gap = np.hypot(*(np.asarray(xy, np.float64)[i] - np.asarray(xy, np.float64)[j]).T)
-        same = gap < np.maximum(radius[i], radius[j])
-        d[i[same], j[same]] = N_BITS + 1
-        d[j[same], i[same]] = N_BITS + 1
-    return float(np.count_nonzero(d.min(axis=1) <= max_bits)) / n
+    p = np.asarray(xy, np.float64)
+    radius = 0.5 * patch_px * scale_factor ** np.asarray(octave, np.float64)
+    # each row's nearest descriptor; where it is the same corner (within half a patch), set it
+    # aside and take the next, only for rows still within max_bits: a few passes over few rows,
+    # instead of every pair of keypoints within the largest radius
+    copy = np.zeros(n, bool)
+    rows = np.arange(n)
+    j = d.argmin(axis=1)
+    while len(rows):
+        close = d[rows, j] <= max_bits
+        rows, j = rows[close], j[close]
+        gap = p[rows] - p[j]
+        same = np.einsum("ij,ij->i", gap, gap) < np.maximum(radius[rows], radius[j]) ** 2
+        copy[rows[~same]] = True
+        rows, j = rows[same], j[same]
+        if len(rows):
+            d[rows, j] = N_BITS + 1
+            j = d[rows].argmin(axis=1)
+    return float(np.count_nonzero(copy)) / n
