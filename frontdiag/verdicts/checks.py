@@ -1227,7 +1227,7 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
            "recovery_frames": _NUM, "max_interval_s": _NUM, **_BASELINE_PARAMS,
            "reject_excess": _NUM, "baseline_sigmas": _NUM, "keypoints_kept": _NUM,
            "ambiguous_repetitive": _NUM, "baseline_widen_max_s": _NUM, "twins_in_frame": _NUM},
-          {"n_keypoints": "min", "ratio_reject_rate": "max"},
+          {"n_keypoints": "min", "ratio_reject_rate": "max", "in_frame_twin_rate": "max"},
           {"fill_floor": "keypoint_fill", "reject_repetitive": "ratio_reject_rate",
            "dmean_step": "d_mean_intensity", "reject_excess": "ratio_reject_base",
            "ambiguous_repetitive": "ratio_ambiguous_rate", "twins_in_frame": "in_frame_twin_rate"},
