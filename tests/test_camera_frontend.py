@@ -160,7 +160,8 @@ def test_in_frame_twins_are_copies_beyond_half_a_patch_within_the_line() -> None
 def test_the_copy_line_is_the_typical_match_distance_over_the_ratio_capped() -> None:
     assert copy_line_bits(36.0, 0.8) == pytest.approx(45.0)
     assert copy_line_bits(64.0, 0.8) == pytest.approx(62.5)   # capped at 50 bits / 0.8
-    assert np.isnan(copy_line_bits(float("nan"), 0.8))
+    # nothing accepted (every feature refused): the good-match distance itself
+    assert copy_line_bits(float("nan"), 0.8) == pytest.approx(50.0)
 
 
 def test_exposure_step_shows_in_gain_and_residual() -> None:

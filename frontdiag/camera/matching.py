@@ -118,10 +118,12 @@ def copy_line_bits(d_accepted_med: float, ratio: float) -> float:
     """The distance within which a copy in the same frame makes the ratio test refuse a typical
     match: the frame's median accepted distance over the ratio, that distance capped at the
     good-match distance (beyond it no candidate is a plausible partner, and a frame whose
-    accepted matches are that poor would count chance neighbours as copies). NaN with no
-    accepted match."""
-    return min(d_accepted_med, GOOD_MATCH_BITS) / ratio if np.isfinite(d_accepted_med) \
-        else float("nan")
+    accepted matches are that poor would count chance neighbours as copies). Where the ratio
+    test accepted nothing (a pattern so regular that every feature has a twin) there is no
+    typical distance: a copy within the good-match distance itself is a plausible partner."""
+    if not np.isfinite(d_accepted_med):
+        return float(GOOD_MATCH_BITS)
+    return min(d_accepted_med, GOOD_MATCH_BITS) / ratio
 
 
 def in_frame_twin_rate(des: np.ndarray, xy: np.ndarray, octave: np.ndarray, max_bits: float,

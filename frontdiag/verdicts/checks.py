@@ -266,8 +266,8 @@ def _relative_rejection_words(row: Mapping[str, Any], p: Params) -> str:
 
 def _copies_words(twin: float, line: float) -> str:
     if np.isnan(twin):
-        return ("in_frame_twin_rate not computable (no match accepted to set its distance line): "
-                "no evidence that the scene repeats itself, so repetitive_structure is not read")
+        return ("in_frame_twin_rate not computable (fewer than two keypoints): no evidence that "
+                "the scene repeats itself, so repetitive_structure is not read")
     if twin >= line:
         return (f"in_frame_twin_rate {twin:.0%} >= {line:.0%}: the scene repeats itself (that "
                 "share of the frame's features has a copy elsewhere in the same view, as close "
