@@ -89,6 +89,11 @@ METRICS: dict[str, Metric] = {m.name: m for m in [
        "share of query features refused by the ratio test although their second candidate is "
        "also a good match (within 50 of 256 bits): two plausible partners, the repetition share "
        "of ratio_reject_rate", "lower"),
+    _M("match_dist_med", "bits", "camera",
+       "median Hamming distance (of 256 bits) of the matches the ratio test accepted against the "
+       "previous frame: how much the same corners changed between the two pictures (a wider "
+       "baseline, blur or a coarser stream raise it); in_frame_twin_rate's copy line is this / "
+       "0.8, capped at 50 bits / 0.8", "lower"),
     _M("in_frame_twin_rate", "ratio", "camera",
        "share of the frame's keypoints with a copy elsewhere in the same frame: another keypoint "
        "beyond half an ORB patch whose descriptor is within the frame's median accepted match "

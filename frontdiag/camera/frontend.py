@@ -228,7 +228,7 @@ def _row_template() -> dict[str, Any]:
         "n_coarse_keypoints": 0,
         "coarse_hull_share": NAN, "lit_share": NAN,
         "n_putative": 0, "ratio_reject_rate": NAN, "ratio_ambiguous_rate": NAN,
-        "in_frame_twin_rate": NAN, "n_matches": 0,
+        "match_dist_med": NAN, "in_frame_twin_rate": NAN, "n_matches": 0,
         "ref_frame": -1, "n_ref_matches": 0, "tracked_share": NAN,
         "inliers_e": NAN, "inliers_h": NAN, "h_over_e": NAN, "inlier_ratio": NAN,
         "ransac_iters_required": NAN, "ransac_iters_run": NAN, "parallax_med_deg": NAN,
@@ -385,6 +385,7 @@ class CameraFrontend:
         row.update(n_putative=m.n_putative, ratio_reject_rate=m.ratio_reject_rate,
                    ratio_ambiguous_rate=m.ratio_ambiguous_rate, n_matches=len(m.query))
         f = cur.feats
+        row["match_dist_med"] = m.d_accepted_med
         row["in_frame_twin_rate"] = in_frame_twin_rate(
             f.des, f.xy, f.octave, copy_line_bits(m.d_accepted_med, p.ratio), p.scale_factor)
         cur.kf_idx[m.query] = prev.kf_idx[m.train]

@@ -264,17 +264,23 @@ def _relative_rejection_words(row: Mapping[str, Any], p: Params) -> str:
     return words + ": at the scene's own level, repetitive_structure ruled out"
 
 
-def _copies_words(twin: float, line: float) -> str:
+def _copies_words(twin: float, line: float, dist: float = float("nan")) -> str:
     if np.isnan(twin):
         return ("in_frame_twin_rate not computable (fewer than two keypoints): no evidence that "
                 "the scene repeats itself, so repetitive_structure is not read")
+    within = ""
+    if not np.isnan(dist):
+        within = (f"; the frame's accepted matches lie a median {dist:.0f} bits from theirs, "
+                  "and a copy counts within that over the ratio test's ratio (match_dist_med)")
     if twin >= line:
         return (f"in_frame_twin_rate {twin:.0%} >= {line:.0%}: the scene repeats itself (that "
                 "share of the frame's features has a copy elsewhere in the same view, as close "
-                "as the frame's matches are to theirs, so the ratio test refuses their matches)")
+                f"as the frame's matches are to theirs, so the ratio test refuses their matches"
+                f"{within})")
     return (f"in_frame_twin_rate {twin:.0%} < {line:.0%}: few features have a copy in the same "
-            "view, so the ratio test's refusals are not repetition's (a wide baseline, blur or "
-            "compression refuse features that nothing resembles): repetitive_structure ruled out")
+            f"view{within}, so the ratio test's refusals are not repetition's (a wide baseline, "
+            "blur or compression refuse features that nothing resembles): repetitive_structure "
+            "ruled out")
 
 
 def _matching_table_explain(row: Mapping[str, Any], p: Params) -> list[str]:
@@ -311,7 +317,8 @@ def _matching_table_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                       "compression, or a repeated object seen in perspective, whose copies "
                       "differ with distance and angle), and the rejection lines above decide"))
     if "twins_in_frame" in p:
-        out.append(_copies_words(_v(row, "in_frame_twin_rate"), p["twins_in_frame"]))
+        out.append(_copies_words(_v(row, "in_frame_twin_rate"), p["twins_in_frame"],
+                                 _v(row, "match_dist_med")))
     if not np.isnan(dm) and abs(dm) > p["dmean_step"]:
         out.append(f"|d_mean_intensity| {abs(dm):.1f} > {p['dmean_step']:g}: an exposure step; "
                    f"a rejection spike within {p['recovery_frames']:g} frames is the step's")
