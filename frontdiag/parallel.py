@@ -175,6 +175,12 @@ def drain(pool: ProcessPoolExecutor, futures: list[Future[Any]],
             proc.terminate()
 
 
+def window_overlap(params: Any, stride: int = 1) -> int:
+    """Frames of warm-up before each window but the first: ``OVERLAP_KEYFRAMES`` keyframe
+    intervals of ``params.kf_max_frames`` analysed frames (``stride`` recording frames each)."""
+    return OVERLAP_KEYFRAMES * int(params.kf_max_frames) * max(stride, 1)
+
+
 def _task(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
           frames: FrameWindow | None, resume: Any = None, until_keys: dict[int, Any] | None = None
           ) -> StreamRun:
@@ -207,7 +213,7 @@ def run_windows(path: Path, rec: Recording, choice: TopicChoice, opts: Any,
 
     n_cam = next((t.count for t in rec.topics if t.topic == choice.camera), None)
     cparams = opts.camera_params or CameraParams()
-    overlap = OVERLAP_KEYFRAMES * cparams.kf_max_frames * max(opts.stride, 1)
+    overlap = window_overlap(cparams, opts.stride)
     windows = plan_windows(n_cam, opts.jobs, overlap) if n_cam else []
     if len(windows) < 2 or opts.max_frames:
         # nothing to split (no camera, a short one, or a frame budget counted from the start)

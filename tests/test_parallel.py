@@ -11,7 +11,8 @@ import pytest
 from recording_factory import write_recording
 
 from frontdiag.api import AnalysisOptions, run_analysis
-from frontdiag.parallel import plan_windows
+from frontdiag.camera.frontend import CameraParams
+from frontdiag.parallel import plan_windows, window_overlap
 
 
 def _same_table(a: pd.DataFrame, b: pd.DataFrame) -> None:
@@ -164,18 +165,14 @@ def _same_but_the_drained_spans(serial: pd.DataFrame, par: pd.DataFrame,
     a, b = serial[span].reset_index(drop=True), par[span].reset_index(drop=True)
     differs = np.flatnonzero(~((a == b) | (a.isna() & b.isna())).all(axis=1).to_numpy())
     if len(differs):
-        ends = {w.own_to for w in plan_windows(len(whole), 2, _overlap())}
+        ends = {w.own_to for w in plan_windows(len(whole), 2,
+                                                window_overlap(CameraParams()))}
         # one block of rows, ending where a window ends
         assert (differs == np.arange(differs[0], differs[-1] + 1)).all()
         assert differs[-1] + 1 in ends
         pd.testing.assert_frame_equal(b.iloc[differs], whole[span].iloc[differs])
 
 
-def _overlap() -> int:
-    from frontdiag.camera.frontend import CameraParams
-    from frontdiag.parallel import OVERLAP_KEYFRAMES
-
-    return OVERLAP_KEYFRAMES * CameraParams().kf_max_frames
 
 
 @pytest.fixture
