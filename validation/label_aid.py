@@ -43,6 +43,7 @@ if str(HERE.parent) not in sys.path:
 from frontdiag.io.readers import open_recording  # noqa: E402
 from frontdiag.io.topics import choose_topics  # noqa: E402
 from frontdiag.runner import iter_camera_frames  # noqa: E402
+from validation.score import EXPOSURE_UNLABELLED_CHANGE  # noqa: E402
 
 HALF = 4  # 9x9 patches
 MIN_VERIFIED = 30  # a ratio resting on fewer verified matches is not used
@@ -89,9 +90,10 @@ def pair_ratio(a: np.ndarray, b: np.ndarray, unclipped: bool = False) -> tuple[f
     return float(np.median(mb[keep] / ma[keep])), int(ok.sum())
 
 
-GAP_LISTED = 0.06
+GAP_LISTED = EXPOSURE_UNLABELLED_CHANGE
 """Gaps stored in the manifest: at least this much brighter or darker (the README's lower
-exposure line; under it a gap of healthy frames is healthy)."""
+exposure line, which validation/score.py reads them against; under it a gap of healthy frames
+is healthy)."""
 
 
 def gap_ratios(path: Path, n: int, unclipped: bool = False) -> list[tuple[int, float, int]]:
