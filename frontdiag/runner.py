@@ -507,7 +507,9 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
     with frame_boundary_interrupts() as stop_asked:
         try:
             for raw in rec.messages(read_topics, None, e):
-                if stop_asked():
+                if stop_asked() and not (cam_stream is not None and cam_stream.draining):
+                    # a window that read all its frames ends its read-on first (a keyframe
+                    # interval or two): its rows are then those of every finished window
                     raise KeyboardInterrupt
                 if raw.topic == choice.odometry and lid_front is not None:
                     try:

@@ -353,3 +353,47 @@ def test_thermal_counts_give_the_serial_table_in_windows(tmp_path: Path) -> None
         seen = [conv(rec.deserialize(r), r.msgtype)[0] for r in raws]
     got = read_pixels(serial.manifest, "/thermal/image_raw", T0 + 140 * DT)
     assert got is not None and np.array_equal(got, seen[140])
+
+
+@pytest.mark.usefixtures("default_sigint")
+def test_a_window_asked_to_stop_in_its_read_on_still_completes_its_rows(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A window that has analysed all its frames reads on until its last keyframe interval
+    closes. Ctrl-C (or the SIGINT an interrupted run sends its workers) arriving in that read-on
+    marks the window interrupted but lets the read-on finish, so its rows are those the window
+    gives uninterrupted: the interrupted parallel table then holds whole-recording readings
+    there, not readings of whatever frame the signal happened to land on."""
+    import os
+    import signal
+
+    from frontdiag.api import calibration_for_images
+    from frontdiag.camera import frontend
+    from frontdiag.io.readers import open_recording
+    from frontdiag.io.topics import choose_topics
+    from frontdiag.parallel import _task
+
+    path = write_recording(tmp_path / "run.mcap", "mcap", n=150, shift=1)
+    opts = AnalysisOptions(jobs=2)
+    with open_recording(path) as rec:
+        choice = choose_topics(rec.topics)
+        intr = calibration_for_images(rec, choice, opts, [])
+    first = plan_windows(150, 2, window_overlap(CameraParams()))[0]
+    assert first.own_to is not None
+    calm = _task(path, choice, opts, intr, first)
+    assert not calm.interrupted
+    real = frontend.CameraFrontend.process
+    seen: list[int] = []
+
+    def process(self, frame):  # type: ignore[no-untyped-def]
+        seen.append(frame.index)
+        if frame.index == first.own_to:
+            os.kill(os.getpid(), signal.SIGINT)  # the first frame past the window
+        return real(self, frame)
+
+    with monkeypatch.context() as m:
+        m.setattr(frontend.CameraFrontend, "process", process)
+        asked = _task(path, choice, opts, intr, first)
+    assert asked.interrupted
+    assert max(seen) > first.own_to  # the read-on went past the frame the signal landed on
+    assert [r["frame"] for r in asked.rows] == list(range(first.own_to))
+    _same_table(pd.DataFrame(calm.rows), pd.DataFrame(asked.rows))
