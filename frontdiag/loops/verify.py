@@ -417,7 +417,7 @@ def verify_against_map(result: LoopAudit) -> None:
                 # their basin (sphere2500 with random false loops: 9 081 from the map that
                 # held 27 false loops, 712 from the chordal start) or run out of iterations
                 # still inside it (intel with 50 % grouped false loops, seeds 2 and 3: the
-                # screened-out groups passed again against the bent map and 27 and 16 false
+                # screened-out groups passed again against the bent map and 48 and 24 false
                 # loops were kept). Two minima are told apart by cost beyond the solver's own
                 # precision (RESTART_GAIN); a round that only adds verified loops starts from
                 # the map before it.
