@@ -296,7 +296,7 @@ def test_a_chain_refusal_is_not_overruled_by_a_map_no_stiffer_than_the_chain(
     import frontdiag.loops.verify as V
 
     real = V.map_test
-    monkeypatch.setattr(V, "map_test", lambda r, P, m, seed=0: real(r, P, m, seed=seed + offset))
+    monkeypatch.setattr(V, "map_test", lambda r, P, m, seed=0, **kw: real(r, P, m, seed=seed + offset, **kw))
     gpath = _square_graph(tmp_path / "sq.g2o", [(5, 45, 0.0), (7, 47, 4.0)])
     t = audit(read_graph(gpath)).table.set_index("i")
     assert t.loc[5, "verdict"] == "ok"
@@ -454,15 +454,20 @@ def _two_lap_square(path: Path, side: int, loops: list[tuple[int, int, int]], se
 
 
 
-def _rules_switched_off(tmp_path: Path, param: str):  # type: ignore[no-untyped-def]
-    """The default loop rules with the boolean parameter ``param`` set to false."""
+def _rules_switched_off(tmp_path: Path, *params: str):  # type: ignore[no-untyped-def]
+    """The default loop rules with the boolean parameters ``params`` set to false (and
+    ``run_gap``, a number of poses, set to 0, which turns the run screen off)."""
+    import re
+
     from frontdiag.loops.rules import default_loop_rules_file, load_loop_rules
 
     text = default_loop_rules_file().read_text()
-    on = f"{param} = {{ value = true,"
-    assert on in text
-    path = tmp_path / f"no_{param}.toml"
-    path.write_text(text.replace(on, f"{param} = {{ value = false,"))
+    for param in params:
+        on = re.compile(rf"^{param} = {{ value = (true|\d+),", re.M)
+        assert on.search(text), param
+        text = on.sub(f"{param} = {{ value = {0 if param == 'run_gap' else 'false'},", text)
+    path = tmp_path / f"no_{'_'.join(params)}.toml"
+    path.write_text(text)
     return load_loop_rules(path)
 
 def test_clusters_the_map_cannot_test_alone_are_verified_by_each_other(tmp_path: Path) -> None:
@@ -735,8 +740,8 @@ def test_a_refuted_loop_is_kept_only_within_fold_m_in_both_fold_and_residual(
     g = read_graph(path)
     target = 7  # the loop 14 -> 54
 
-    def fake(r, P, m, seed=0):  # type: ignore[no-untyped-def]
-        res = real(r, P, m, seed=seed)
+    def fake(r, P, m, seed=0, **kw):  # type: ignore[no-untyped-def]
+        res = real(r, P, m, seed=seed, **kw)
         for key, v in (("p", 0.0), ("fold_m", fold), ("residual_m", residual)):
             res[key] = res[key].copy()
             res[key][target] = v
@@ -833,11 +838,12 @@ def test_a_consistent_group_of_false_loops_in_the_first_map_is_screened_out(
     T = [(i, i + lap, i + lap) for s0 in (0, 30, 90) for i in range(s0, s0 + 10, 2)]
     F = [(i, i + lap + 8, i + lap) for i in range(60, 70, 2)]
     g = read_graph(_two_lap_square(tmp_path / "sq.g2o", 30, T + F))
-    off = audit(g, _rules_switched_off(tmp_path, "screen_groups")).table
+    # without this screen and the run screen (which also finds F: the next test)
+    off = audit(g, _rules_switched_off(tmp_path, "screen_groups", "run_gap")).table
     on_audit = audit(g)
     on = on_audit.table
     is_f = off["i"].between(60, 69).to_numpy()
-    # the premise: no chain has power, and without the screen the alias is kept
+    # the premise: no chain has power, and without the screens the alias is kept
     assert (off["chain_sigma_m"] > 2.0).all()
     assert (off.loc[is_f, "verdict"] == "ok").all()
     assert (on.loc[is_f, "verdict"] == "fail").all()
@@ -848,16 +854,59 @@ def test_a_consistent_group_of_false_loops_in_the_first_map_is_screened_out(
     assert not on.loc[~is_f, "reason"].str.contains("taken out").any()
     assert not any("not screened" in n for n in on_audit.notes)
     # over its budget the screen is skipped, and said so: 2 groups x 240 poses x 9 = 4320
-    from frontdiag.loops.rules import default_loop_rules_file, load_loop_rules
+    from frontdiag.loops.rules import load_loop_rules
 
-    text = default_loop_rules_file().read_text()
+    text = (tmp_path / "no_screen_groups_run_gap.toml").read_text()
     assert "screen_budget = { value = 500000," in text
-    (tmp_path / "small.toml").write_text(
-        text.replace("screen_budget = { value = 500000,", "screen_budget = { value = 2000,"))
+    (tmp_path / "small.toml").write_text(text.replace(
+        "screen_budget = { value = 500000,", "screen_budget = { value = 2000,").replace(
+        "screen_groups = { value = false,", "screen_groups = { value = true,"))
     skipped = audit(g, load_loop_rules(tmp_path / "small.toml"))
     pd.testing.assert_series_equal(skipped.table["verdict"], off["verdict"])
     assert any("not screened (2 to test" in n and "4.32e+03 against" in n
                for n in skipped.notes)
+
+
+def test_loop_runs_link_loops_whose_two_ends_are_both_near(tmp_path: Path) -> None:
+    """A run: loops whose i and j are each within run_gap poses of another loop's (either way
+    round); a loop near another at one end only, or alone, is in no run."""
+    from frontdiag.loops.verify import loop_runs
+
+    spec = [(0, 40, 0.0), (2, 42, 0.0), (4, 44, 0.0),  # one run, 2 poses apart
+            (10, 50, 0.0), (14, 54, 0.0),  # 4 apart at both ends: not linked at gap 3
+            (20, 60, 0.0), (22, 70, 0.0),  # near at i only
+            (73, 25, 0.0)]  # written later -> earlier: near (22, 70) at both ends
+    res = audit(read_graph(_square_graph(tmp_path / "sq.g2o", spec)), verify=False)
+    runs = loop_runs(res, np.arange(len(spec)), 3)
+    ends = [sorted((int(res.table["i"].iat[r]), int(res.table["j"].iat[r])) for r in run)
+            for run in runs]
+    assert sorted(ends) == [[(0, 40), (2, 42), (4, 44)], [(22, 70), (25, 73)]]
+    assert [len(r) for r in loop_runs(res, np.arange(len(spec)), 4)] == [3, 2, 2]
+    assert loop_runs(res, np.arange(1), 3) == []
+
+
+def test_a_run_of_false_loops_in_the_map_is_taken_out_by_the_run_screen(tmp_path: Path) -> None:
+    """The graph of the test before, with the group screen off: F, a run of five loops two poses
+    apart, is in the map to the end, where each of its loops passes the map test because the
+    other four hold the map to it. Tested as a run against the map without it (one
+    factorisation for every run), it is refuted, stays out (the rounds take it back only as a
+    whole), and each of its loops is then refused; every true loop is kept."""
+    lap = 120
+    T = [(i, i + lap, i + lap) for s0 in (0, 30, 90) for i in range(s0, s0 + 10, 2)]
+    F = [(i, i + lap + 8, i + lap) for i in range(60, 70, 2)]
+    g = read_graph(_two_lap_square(tmp_path / "sq.g2o", 30, T + F))
+    both_off = audit(g, _rules_switched_off(tmp_path, "screen_groups", "run_gap")).table
+    runs = audit(g, _rules_switched_off(tmp_path, "screen_groups")).table
+    is_f = runs["i"].between(60, 69).to_numpy()
+    assert (both_off.loc[is_f, "verdict"] == "ok").all()  # the premise (as the test before)
+    assert both_off.loc[is_f, "in_map"].all()
+    assert (runs.loc[is_f, "verdict"] == "fail").all()
+    assert not runs.loc[is_f, "in_map"].any()
+    assert (runs.loc[is_f, "map_residual_m"] > 6.0).all()
+    assert runs.loc[is_f, "reason"].str.contains(
+        r"its run of 5 loops \(60-68 → 188-196\) was taken out of the map").all()
+    assert (runs.loc[~is_f, "verdict"] == "ok").all()
+    assert not runs.loc[~is_f, "reason"].str.contains("taken out").any()
 
 
 def test_the_screen_tests_again_the_groups_that_passed_beside_a_refuted_one(

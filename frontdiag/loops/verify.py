@@ -16,6 +16,11 @@ only they join) are then tested cluster by cluster against the map holding the o
 clusters (``_corroborate``, every cluster from one factorisation: ``leave_cluster_out``); the
 clusters that pass there with power join the map and the rounds run again.
 
+Runs (``_screen_runs``): loops whose ends are each within ``run_gap`` poses of another's, as
+place recognition closes a revisit over consecutive frames, are tested run by run against the
+map without them (all from one factorisation of the last map); a refuted run leaves the map,
+and comes back only as a whole.
+
 The test. At the solution the linearised system is ``H δx = −Aᵀ r``. Drawing whitened
 measurement noise ``n ~ N(0, I)`` for every edge of the map gives ``δx = −H⁻¹Aᵀn ~ N(0, H⁻¹)``
 exactly, so K draws (one factorisation, K back-substitutions) give, for every loop at once,
@@ -41,10 +46,12 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.stats import chi2 as chi2_dist
 from scipy.stats import f as f_dist
 
-from frontdiag.loops import lie
+from frontdiag.loops import lie, pcm
 from frontdiag.loops.init import chordal_init
 from frontdiag.loops.solve import (
     Factor,
@@ -69,6 +76,11 @@ MIN_VARIANCE_LOOPS = 10  # loops in the map below which the variance factor is n
 # up to ~1e-4 of the cost (intel 105.254 / 105.265, CSAIL 3e-7), a different basin by far more
 # (sphere2500 712 / 9 081, docs/loops.md).
 RESTART_GAIN = 0.01
+# A run goes to the exact leave-run-out test when its joint test against the map, from the map
+# test's draws, reads p under this: loose against p_alarm (1e-6), since the sampled joint test
+# is the weaker one (64 draws for up to 32 rows), and one true run in a hundred costs a few
+# back-substitutions.
+PRE_P = 0.01
 
 
 def map_edges(result: LoopAudit, in_map: NDArray[np.bool_]) -> NDArray[np.bool_]:
@@ -147,7 +159,7 @@ def map_test(result: LoopAudit, P: F, in_map: NDArray[np.bool_], seed: int = 0,
     Cd = np.einsum("mis,mjs->mij", d_rel, d_rel) / N_DRAWS
     fold = np.einsum("mij,mj->mi", Cd @ np.linalg.inv(S), e)[:, :d]
     return {"map_sigma_m": np.sqrt(map_var * sigma0_sq), "T2": T2s, "p": p,
-            "sigma0_sq": np.full(loops.size, sigma0_sq),
+            "sigma0_sq": np.full(loops.size, sigma0_sq), "e": e, "draws": draws,
             "fold_m": np.linalg.norm(fold, axis=1),
             "residual_m": np.linalg.norm(R[:, :g.dim, g.dim], axis=1),
             "residual_deg": np.degrees(lie.rotation_angle(R))}
@@ -338,6 +350,96 @@ def _screen_groups(result: LoopAudit, P: F, in_map: NDArray[np.bool_], p_alarm: 
     return out, gone
 
 
+def loop_runs(result: LoopAudit, rows: NDArray[np.intp], gap: int) -> list[NDArray[np.intp]]:
+    """The runs among the loops ``rows`` (table rows): sets of two or more loops linked by
+    pairs whose two ends are each at most ``gap`` poses apart (i within gap of i', j within gap
+    of j'), as place recognition closes a revisit over several consecutive frames. Loops with
+    no such neighbour are left out (the map test is already their leave-one-out test)."""
+    if rows.size < 2:
+        return []
+    g = result.graph
+    edges = result.table["edge"].to_numpy()[rows]
+    a, b = g.src[edges], g.dst[edges]
+    lo, hi = np.minimum(a, b), np.maximum(a, b)
+    pairs = pcm.candidate_pairs(lo, hi, gap)
+    if pairs.shape[0] == 0:
+        return []
+    link = coo_matrix((np.ones(pairs.shape[0]), (pairs[:, 0], pairs[:, 1])),
+                      shape=(rows.size, rows.size))
+    _, label = connected_components(link, directed=False)
+    size = np.bincount(label)
+    return [rows[label == c] for c in np.flatnonzero(size >= 2).tolist()]
+
+
+def _joint_p(res: dict[str, F], rows: NDArray[np.intp]) -> float:
+    """p of the joint test of the loops ``rows`` against the map of ``res`` (:func:`map_test`),
+    from its draws: Hotelling's T² of the stacked residuals under their joint sample covariance
+    (the draws share δx, so they carry the loops' correlations through the map), after the
+    variance factor; 0 where the stack has too many rows for the draws to estimate it."""
+    e = res["e"][rows].ravel()
+    draws = res["draws"][rows]
+    n_draws = draws.shape[-1]
+    dim = e.size
+    if 2 * dim > n_draws:
+        return 0.0
+    D = draws.reshape(dim, n_draws)
+    try:
+        T2 = float(e @ np.linalg.solve(D @ D.T / n_draws, e)) / float(res["sigma0_sq"][0])
+    except np.linalg.LinAlgError:
+        return 0.0
+    return float(f_dist.sf(T2 * (n_draws - dim + 1) / (n_draws * dim), dim, n_draws - dim + 1))
+
+
+def _screen_runs(result: LoopAudit, P: F, in_map: NDArray[np.bool_], p_alarm: float,
+                 runs: list[NDArray[np.intp]], res: dict[str, F]
+                 ) -> tuple[NDArray[np.bool_], F, dict[int, tuple[float, float]]]:
+    """The map's loops less the runs that the map without them refutes, the poses of that
+    map, and per run taken out (its index in ``runs``) its median p and T² when it left.
+
+    A pair-test group is every loop joined by consistent pairs, so where the chains are
+    loose (σ of half a metre over a few dozen poses) a run of false loops whose claims are
+    within a metre of the truth joins the group of the true loops around it, and the group
+    screen cannot take it out alone. In the map, the run's loops support each other, so each
+    passes the leave-one-out map test. Each run is tested against the map without it, all from
+    one factorisation (:func:`leave_cluster_out`; RRR's intra-cluster test of Latif, Cadena &
+    Neira 2013 against the map rather than the chain): a run is refuted when the median of its
+    loops' p is under ``p_alarm``. As in the group screen, the most refuted run leaves first,
+    and the other refuted ones are tested again against the map without it (a false run bends
+    the map the true runs beside it are tested against).
+    """
+    g = result.graph
+    out = in_map.copy()
+    gone: dict[int, tuple[float, float]] = {}
+
+    def refuted(ids: list[int], P: F) -> dict[int, tuple[float, float]]:
+        system = map_system(result, P, out)
+        s0 = float(map_test(result, P, out, seed=len(gone) + 1, system=system)["sigma0_sq"][0])
+        found = {}
+        tests = leave_cluster_out(result, P, out, [runs[i] for i in ids], system)
+        for i, (T2, _var) in zip(ids, tests, strict=True):
+            p = float(np.median(chi2_dist.sf(T2 / s0, g.k)))
+            if p < p_alarm:
+                found[i] = (p, -float(np.median(T2 / s0)))
+        return found
+
+    # The exact test costs one back-substitution per residual row of the runs tested (3 900 on
+    # M3500, about 1 s). For a run in the map, the joint test of its loops together reads the
+    # same statistic in the map as without it, r_delᵀ(I − M)r_del = r_cᵀ(I − M)⁻¹r_c (Baarda's
+    # test for a group of observations); the last round's draws estimate it, so only the runs
+    # whose joint test there reads p < PRE_P go to the exact, per-loop test.
+    suspect = [i for i, rows in enumerate(runs) if _joint_p(res, rows) < PRE_P]
+    cand = refuted(suspect, P) if suspect else {}
+    while cand:
+        worst = min(cand, key=lambda c: (cand[c], c))
+        p_w, neg_T2 = cand.pop(worst)
+        gone[worst] = (p_w, -neg_T2)
+        out[runs[worst]] = False
+        P, _ = solve(g, map_edges(result, out), P, tol=1e-6)
+        if cand:
+            cand = refuted(list(cand), P)
+    return out, P, gone
+
+
 def verify_against_map(result: LoopAudit) -> None:
     """Run the rounds and fold their outcome into the table's verdicts (module doc)."""
     t = result.table
@@ -350,6 +452,7 @@ def verify_against_map(result: LoopAudit) -> None:
     power_m = float(r3.param("power_m"))
     overrule = float(r3.param("overrule_chain"))
     corroborate = bool(r3.param("corroborate")) if "corroborate" in r3.params else False
+    run_gap = int(r3.param("run_gap")) if "run_gap" in r3.params else 0
     failed = (t["verdict"] == "fail").to_numpy()
     chain_sigma = t["chain_sigma_m"].to_numpy()
     # a loop its chain refused comes back only against a map that knows more between its poses
@@ -374,6 +477,8 @@ def verify_against_map(result: LoopAudit) -> None:
     last: dict[str, float] = {}  # the stats of the last map's solve
     screened: dict[int, tuple[float, float]] = {}  # groups the screen took out of the first map
     taken = np.zeros(len(t), bool)  # and their loops that were in it
+    barred_runs: list[NDArray[np.intp]] = []  # runs the run screen took out, judged whole
+    run_out = np.zeros(len(t), bool)  # the loops of those still out
 
     def over_budget(n_groups: int) -> bool:
         """Whether the screen's solves (one per group, each over every pose) exceed
@@ -444,10 +549,18 @@ def verify_against_map(result: LoopAudit) -> None:
             last.clear()
             last.update(st)
             res = map_test(result, P, in_map, seed=r)
+            # a run the run screen took out is judged as a whole: it comes back (its loops then
+            # as any other) once the median p of its loops, each tested against this map, which
+            # holds none of them, passes; until then none of its loops joins, since its loops
+            # nearest the truth pass alone and each one admitted bends the map to the next
+            run_out[:] = False
+            for rows in barred_runs:
+                if not np.median(res["p"][rows]) >= p_alarm:
+                    run_out[rows] = True
             # admit a loop only once its test had power: map σ small enough to refute a lie
             # of a few fold_m (5.5 σ at p = 1e-6); a passing loop already in the map stays
             nxt = (res["p"] >= p_alarm) & (in_map | (res["map_sigma_m"] <= power_m)) \
-                & ~(chain_refused & ~_stiffer(res, chain_sigma, overrule))
+                & ~(chain_refused & ~_stiffer(res, chain_sigma, overrule)) & ~run_out
             if np.array_equal(nxt, in_map) or r >= end:
                 break
             prev, in_map = in_map, nxt
@@ -463,6 +576,14 @@ def verify_against_map(result: LoopAudit) -> None:
             corroborated = extra
             in_map, P, res, more = run_rounds(in_map | extra, P, rounds + 1, solved)
             rounds = more
+    runs_gone: list[tuple[NDArray[np.intp], float, float]] = []
+    if run_gap > 0:
+        runs = loop_runs(result, np.flatnonzero(in_map), run_gap)
+        kept, P_runs, gone = _screen_runs(result, P, in_map, p_alarm, runs, res)
+        if gone:
+            runs_gone = [(runs[i], p_r, T2_r) for i, (p_r, T2_r) in gone.items()]
+            barred_runs.extend(runs[i] for i in gone)
+            in_map, P, res, rounds = run_rounds(kept, P_runs, rounds + 1)
     result.map_poses = P
     if last and not last.get("converged", 1.0):
         result.notes.append(
@@ -481,7 +602,8 @@ def verify_against_map(result: LoopAudit) -> None:
     t["map_fold_m"] = res["fold_m"]
     t["in_map"] = in_map
     result.timings["map_rounds"] = float(rounds)
-    refuted = res["p"] < p_alarm
+    alone = res["p"] < p_alarm
+    refuted = alone | (run_out & ~in_map)
     verdict = t["verdict"].to_numpy().astype(object)
     rule = t["rule"].to_numpy().astype(object)
     reason = t["reason"].to_numpy().astype(object)
@@ -501,7 +623,8 @@ def verify_against_map(result: LoopAudit) -> None:
             # inconsistent with the map, but too small to fold it: kept, and said so. The
             # residual is bounded too: a stiff map yields little to one loop (a small G e),
             # but a group of such loops would move it by up to their residual
-            reason[i] = (f"kept: off the map beyond its stated covariance, but believing it "
+            off = "off the map" if alone[i] else "with its run, off the map"
+            reason[i] = (f"kept: {off} beyond its stated covariance, but believing it "
                          f"moves the map by {res['fold_m'][i]:.2f} m and it is "
                          f"{res['residual_m'][i]:.2f} m from it (both <= fold_m {fold_m:g} m of "
                          f"{r4.id}), too little to fold it; {m}")
@@ -511,7 +634,8 @@ def verify_against_map(result: LoopAudit) -> None:
         elif refuted[i]:
             if verdict[i] != "fail":
                 verdict[i], rule[i] = r3.severity, r3.id
-                reason[i] = "contradicts the map: " + m
+                reason[i] = ("contradicts the map: " if alone[i]
+                             else "contradicts the map with its run: ") + m
             else:
                 reason[i] = f"{reason[i]}; also {m}"
         elif not in_map[i]:
@@ -547,6 +671,15 @@ def verify_against_map(result: LoopAudit) -> None:
         took = (f"its pair-test group ({mine.size} loops) was taken out of the first map: "
                 f"against the map without it, median χ²={T2_g:.3g}, p={p_g:.2g}")
         for i in mine.tolist():
+            reason[i] = f"{reason[i]}; {took}" if reason[i] else took
+    for rows, p_r, T2_r in runs_gone:
+        a_, b_ = g.src[t["edge"].to_numpy()[rows]], g.dst[t["edge"].to_numpy()[rows]]
+        took = (f"its run of {rows.size} loops ({a_.min()}-{a_.max()} → {b_.min()}-{b_.max()}) "
+                f"was taken out of the map: against the map without it, median "
+                f"χ²={T2_r:.3g}, p={p_r:.2g}")
+        if not run_out[rows].any():
+            took += "; it came back once the map had changed"
+        for i in rows.tolist():
             reason[i] = f"{reason[i]}; {took}" if reason[i] else took
     t["verdict"] = verdict.astype(str)
     t["rule"] = rule.astype(str)
