@@ -6,6 +6,9 @@ frontdiag/loops/inject.py) and every share of the true loop count (10/30/50 %), 
 
 * recall     share of false loops the audit does not keep (verdict fail, or warn: unverified)
 * retention  share of true loops it keeps
+* ret. self  share of the true loops the audit keeps on the clean graph that it still keeps
+             with the false loops injected (retention less the published loops it refutes
+             anyway: see ATE self)
 * ATE kept   map of the kept loops vs map of the clean graph (rigidly aligned RMS, m)
 * ATE all    map with every loop believed vs the clean map: what the false loops do
 * folded     ATE kept > 1.5 x ATE of the clean graph with 2 % of its true loops dropped at
@@ -83,7 +86,7 @@ def main() -> int:
     rows = []
     stiff_line = float(load_loop_rules().by_statistic("stiffness").param("max_over_median"))
     head = (f"{'graph':<15}{'kind':<9}{'false%':>7}{'n_false':>8}{'recall':>8}{'retain':>8}"
-            f"{'ATEkept':>9}{'ATEall':>9}{'fold@':>8}{'folded':>7}{'ATEself':>8}{'audit_s':>9}"
+            f"{'ret.self':>9}{'ATEkept':>9}{'ATEall':>9}{'fold@':>8}{'folded':>7}{'ATEself':>8}{'audit_s':>9}"
             f"{'GNC_s':>8}"
             f"{'GNCrec':>8}{'GNCret':>8}{'x':>6}")
     print(head, flush=True)
@@ -134,6 +137,9 @@ def main() -> int:
                 refused = (t["verdict"] != "ok").to_numpy()
                 recall = float(refused[fl].mean()) if fl.any() else float("nan")
                 retain = float((~refused[~fl]).mean())
+                # the false loops are appended after the clean graph's edges
+                mine = ~fl & self_kept[np.minimum(t["edge"].to_numpy(), clean.n_edges - 1)]
+                retain_self = float((~refused[mine]).mean())
                 kept, every_g = res.kept_edges(), np.ones(g.n_edges, bool)
                 P_kept, _ = solve(g, kept, start(g, kept))
                 P_all, _ = solve(g, every_g, start(g, every_g))
@@ -141,6 +147,7 @@ def main() -> int:
                 a_self = ate(P_kept, P_self)
                 row = {"graph": entry["name"], "kind": kind, "fraction": frac,
                        "n_false": int(fl.sum()), "recall": recall, "retention": retain,
+                       "retention_self": retain_self,
                        "ate_kept_m": a_kept, "ate_all_m": a_all, "fold_at_m": fold_at,
                        "ate_self_m": a_self, "clean_refused": int((~self_kept).sum()),
                        "folded": bool(a_kept > fold_at), "audit_s": secs}
@@ -162,7 +169,7 @@ def main() -> int:
                 first = False
                 rows.append(row)
                 print(f"{entry['name']:<15}{kind:<9}{frac * 100:>6.0f}%{row['n_false']:>8}"
-                      f"{recall:>8.3f}{retain:>8.3f}{a_kept:>9.3f}{a_all:>9.2f}{fold_at:>8.3f}"
+                      f"{recall:>8.3f}{retain:>8.3f}{retain_self:>9.3f}{a_kept:>9.3f}{a_all:>9.2f}{fold_at:>8.3f}"
                       f"{'YES' if row['folded'] else 'no':>7}{a_self:>8.3f}{secs:>9.1f}{gs:>8.1f}"
                       f"{grec:>8.3f}"
                       f"{gret:>8.3f}{ratio:>6.1f}", flush=True)
