@@ -883,6 +883,13 @@ def test_loop_runs_link_loops_whose_two_ends_are_both_near(tmp_path: Path) -> No
     assert sorted(ends) == [[(0, 40), (2, 42), (4, 44)], [(22, 70), (25, 73)]]
     assert [len(r) for r in loop_runs(res, np.arange(len(spec)), 4)] == [3, 2, 2]
     assert loop_runs(res, np.arange(1), 3) == []
+    # a long run is cut into windows half a window apart, the last one ending with the run
+    long = [(k, 40 + k, 0.0) for k in range(0, 16, 2)]  # 8 loops, 2 poses apart
+    res = audit(read_graph(_square_graph(tmp_path / "long.g2o", long)), verify=False)
+    wins = loop_runs(res, np.arange(len(long)), 3, max_len=4)
+    firsts = [[int(res.table["i"].iat[r]) for r in w] for w in wins]
+    assert firsts == [[0, 2, 4, 6], [4, 6, 8, 10], [8, 10, 12, 14]]
+    assert [len(w) for w in loop_runs(res, np.arange(7), 3, max_len=4)] == [4, 4, 4]
 
 
 def test_a_run_of_false_loops_in_the_map_is_taken_out_by_the_run_screen(tmp_path: Path) -> None:
