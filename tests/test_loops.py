@@ -970,6 +970,33 @@ def test_intel_with_half_its_loops_false_in_groups_keeps_none_of_them(seed: int)
     assert kept[~fl].mean() >= 0.98
 
 
+def test_m3500_run_of_false_loops_within_the_chains_sigma_leaves_the_map() -> None:
+    """M3500 with 30 % grouped false loops (benchmark seed 2): a run of ten false loops
+    (2335→2368 … 2344→2377) claims poses 0.3-0.8 m from the truth, within the 0.4-0.6 m σ of
+    the chains between them, and joins the true loops' pair-test group; in the map they held
+    it to each other and all ten were kept. The run screen takes the run out: six are refused,
+    and the four kept are within fold_m of the corrected map, their reason naming the run. No
+    other false loop is kept and every true loop is."""
+    from frontdiag.loops.inject import inject_false_loops
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks/data/loops/input_M3500_g2o.g2o"
+    if not path.exists():
+        pytest.skip("M3500 graph not fetched (python benchmarks/fetch_loops_data.py)")
+    g, false = inject_false_loops(read_graph(path, sqrt_info=True), 0.3, "grouped", seed=2)
+    t = audit(g).table
+    fl = false[t["edge"].to_numpy()]
+    kept = (t["verdict"] == "ok").to_numpy()
+    run = fl & t["i"].between(2335, 2344).to_numpy() & t["j"].between(2368, 2377).to_numpy()
+    assert run.sum() == 10
+    assert not (kept & fl & ~run).any()
+    assert kept[~fl].all()
+    assert not t.loc[run, "in_map"].any()
+    assert (kept & run).sum() <= 4
+    assert (t.loc[kept & run, "map_residual_m"] <= 0.5).all()
+    assert t.loc[run, "reason"].str.contains(
+        r"its run of 10 loops \(2335-2344 → 2368-2377\) was taken out of the map").all()
+
+
 @pytest.mark.parametrize("first_map_capped", [False, True])
 def test_max_rounds_count_from_the_first_converged_map(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, first_map_capped: bool) -> None:
