@@ -410,7 +410,8 @@ def _screen_runs(result: LoopAudit, P: F, in_map: NDArray[np.bool_], p_alarm: fl
                  runs: list[NDArray[np.intp]], res: dict[str, F]
                  ) -> tuple[NDArray[np.bool_], F, dict[int, tuple[float, float]]]:
     """The map's loops less the runs that the map without them refutes, the poses of that
-    map, and per run taken out (its index in ``runs``) its median p and T² when it left.
+    map, and per run taken out (its index in ``runs``) its median p and T² when it left;
+    ``res`` is the map test of the map ``in_map`` at ``P`` (its draws pick the runs tested).
 
     A pair-test group is every loop joined by consistent pairs, so where the chains are
     loose (σ of half a metre over a few dozen poses) a run of false loops whose claims are
@@ -696,7 +697,8 @@ def verify_against_map(result: LoopAudit) -> None:
         for i in mine.tolist():
             reason[i] = f"{reason[i]}; {took}" if reason[i] else took
     for rows, p_r, T2_r in runs_gone:
-        a_, b_ = g.src[t["edge"].to_numpy()[rows]], g.dst[t["edge"].to_numpy()[rows]]
+        e_ = t["edge"].to_numpy()[rows]
+        a_, b_ = np.minimum(g.src[e_], g.dst[e_]), np.maximum(g.src[e_], g.dst[e_])
         took = (f"its run of {rows.size} loops ({a_.min()}-{a_.max()} → {b_.min()}-{b_.max()}) "
                 f"was taken out of the map: against the map without it, median "
                 f"χ²={T2_r:.3g}, p={p_r:.2g}")
