@@ -916,6 +916,38 @@ def test_a_run_of_false_loops_in_the_map_is_taken_out_by_the_run_screen(tmp_path
     assert not runs.loc[~is_f, "reason"].str.contains("taken out").any()
 
 
+def test_the_group_screen_re_solves_only_the_groups_its_linearised_test_suspects(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The graph of the group-screen test: in the first map the alias F (poses 60-68) bends the
+    map, so its linearised leave-group-out test and the true group's at 94-98 (refuted beside
+    it) both read p < PRE_P and both are re-solved. Once F has left, the true group's
+    linearised test passes and no map is re-solved for it again; the verdicts are those of the
+    full screen."""
+    import frontdiag.loops.verify as V
+
+    lap = 120
+    T = [(i, i + lap, i + lap) for s0 in (0, 30, 90) for i in range(s0, s0 + 10, 2)]
+    F = [(i, i + lap + 8, i + lap) for i in range(60, 70, 2)]
+    g = read_graph(_two_lap_square(tmp_path / "sq.g2o", 30, T + F))
+    solved: list[int] = []
+    real = V._leave_out
+
+    def leave_out(result, P, in_map, mine, seed):  # type: ignore[no-untyped-def]
+        solved.append(min(result.table["i"].to_numpy()[mine]))
+        return real(result, P, in_map, mine, seed)
+
+    monkeypatch.setattr(V, "_leave_out", leave_out)
+    t = audit(g).table
+    assert sorted(solved) == [60, 94]  # each re-solved once, in the first pass
+    is_f = t["i"].between(60, 69).to_numpy()
+    assert (t.loc[is_f, "verdict"] == "fail").all()
+    assert (t.loc[~is_f, "verdict"] == "ok").all()
+    monkeypatch.setattr(V, "_group_suspects", lambda r, P, m, group, ids: list(ids))
+    solved.clear()
+    pd.testing.assert_series_equal(audit(g).table["verdict"], t["verdict"])
+    assert sorted(solved) == [60, 94, 94, 94]  # without the pre-test: again after F left
+
+
 def test_the_screen_tests_again_the_groups_that_passed_beside_a_refuted_one(
         monkeypatch: pytest.MonkeyPatch) -> None:
     """Three pair-test groups in the first map: A is refuted against the map of the others; B
@@ -941,6 +973,8 @@ def test_the_screen_tests_again_the_groups_that_passed_beside_a_refuted_one(
 
     monkeypatch.setattr(V, "_leave_out", leave_out)
     monkeypatch.setattr(V, "solve", lambda graph, edges, P, **k: (P, {}))
+    # every group through the linearised pre-test, so that the stand-in decides
+    monkeypatch.setattr(V, "_group_suspects", lambda r, P, m, group, ids: list(ids))
     kept, gone = V._screen_groups(result, np.zeros(1), np.ones(9, bool), 1e-6, [1, 2, 3])
     assert sorted(gone) == [1, 2]
     assert kept.tolist() == [False] * 6 + [True] * 3

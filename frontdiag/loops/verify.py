@@ -294,6 +294,35 @@ def _leave_out(result: LoopAudit, P: F, in_map: NDArray[np.bool_], mine: NDArray
     return float(np.median(res["p"][mine])), float(np.median(res["T2"][mine]))
 
 
+def _group_suspects(result: LoopAudit, P: F, in_map: NDArray[np.bool_], group: NDArray[np.int64],
+                    ids: list[int]) -> list[int]:
+    """The groups among ``ids`` (all in the map of ``in_map`` at ``P``) that the group screen
+    re-solves the map without: those whose linearised leave-group-out test (the deleted
+    residuals of :func:`leave_cluster_out`, every group from one factorisation) reads a median
+    p under PRE_P. A group in the map inflates the variance factor it is read against, so each
+    group is read against the factor of the map's other loops (their median T² in the map
+    test at P). The re-solve and the sampled test decide; this only spares them for the groups
+    the linearised test finds far from refuted (intel with 30 % grouped false loops: 52 re-solves,
+    6.1 of the audit's 7.9 s)."""
+    if not ids:
+        return []
+    g = result.graph
+    system = map_system(result, P, in_map)
+    m = map_test(result, P, in_map, seed=0, system=system)
+    raw = m["T2"] * m["sigma0_sq"]
+    members = [np.flatnonzero(in_map & (group == gid)) for gid in ids]
+    tests = leave_cluster_out(result, P, in_map, members, system)
+    median_chi2 = float(chi2_dist.ppf(0.5, g.k))
+    out = []
+    for gid, (T2, _var) in zip(ids, tests, strict=True):
+        rest = in_map & (group != gid)
+        s0 = max(float(np.median(raw[rest])) / median_chi2, 1e-12) \
+            if rest.sum() >= MIN_VARIANCE_LOOPS else 1.0
+        if float(np.median(chi2_dist.sf(T2 / s0, g.k))) < PRE_P:
+            out.append(gid)
+    return out
+
+
 def screened_groups(group: NDArray[np.int64], in_map: NDArray[np.bool_]) -> list[int]:
     """The pair-test groups of the map that the screen tests: every group but one holding
     half the map's loops or more (the variance factor, and with it every test, assumes the
@@ -328,7 +357,7 @@ def _screen_groups(result: LoopAudit, P: F, in_map: NDArray[np.bool_], p_alarm: 
     def refuted(ids: list[int], P: F) -> dict[int, tuple[float, float]]:
         """The groups among ``ids`` that the map of ``out`` without them refutes."""
         found = {}
-        for gid in ids:
+        for gid in _group_suspects(result, P, out, group, ids):
             p, T2 = _leave_out(result, P, out, out & (group == gid), seed=gid + 1)
             if p < p_alarm:
                 found[gid] = (p, -T2)
