@@ -347,7 +347,9 @@ def _screen_groups(result: LoopAudit, P: F, in_map: NDArray[np.bool_], p_alarm: 
     beside it: the refuted groups leave one at a time, the most refuted first (lowest median
     p, then highest median T²), and the others are tested again against the map without it.
     A false group can also pass while another bends the map its way: once no refuted group is
-    left, every group still in the map is tested again, until none is refuted.
+    left, every group still in the map is tested again, until none is refuted. Each pass
+    re-solves the map only without the groups its linearised test suspects
+    (:func:`_group_suspects`).
     Returns the loops kept and, per group taken out, its median p and T² when it left.
     """
     t = result.table
@@ -532,17 +534,17 @@ def verify_against_map(result: LoopAudit) -> None:
     run_out = np.zeros(len(t), bool)  # the loops of those still out
 
     def over_budget(n_groups: int) -> bool:
-        """Whether the screen's solves (one per group, each over every pose) exceed
+        """Whether the screen's solves (up to one per group, each over every pose) exceed
         ``screen_budget``; said in the notes when they do."""
         work = n_groups * g.n_vertices * g.k**2
         if work <= screen_budget:
             return False
         result.notes.append(
-            f"the first map's pair-test groups were not screened ({n_groups} to test, each one "
+            f"the first map's pair-test groups were not screened ({n_groups} to test, each up to one "
             f"solve of the {g.n_vertices}-pose graph: {work:.3g} against FD-LOP-003's "
             f"screen_budget {screen_budget:.3g}): a group of mutually consistent false loops in "
             "the first map can then be kept. Raise screen_budget in a rules file (--rules) to "
-            "screen them, at the cost of that many solves")
+            "screen them, at the cost of up to that many solves")
         return True
 
     def run_rounds(in_map: NDArray[np.bool_], P: F, first: int, solved: Solved | None = None
