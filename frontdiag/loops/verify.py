@@ -221,15 +221,11 @@ def _corroborate(result: LoopAudit, P: F, in_map: NDArray[np.bool_], res: dict[s
     g = result.graph
     held = in_map | cand
     P_all, st_all = solve(g, map_edges(result, held), P, tol=1e-6)
-    system = map_system(result, P_all, held)
-    sigma0_sq = float(map_test(result, P_all, held, seed=int(loops[idx[0]]),
-                               system=system)["sigma0_sq"][0])
     members = [idx[label == c] for c in clusters.tolist()]
-    tests = leave_cluster_out(result, P_all, held, members, system)
-    for mine, (T2, var) in zip(members, tests, strict=True):
-        p = chi2_dist.sf(T2 / sigma0_sq, g.k)
-        ok = (p >= p_alarm) & (np.sqrt(var * sigma0_sq) <= power_m)
-        out[mine[ok]] = True
+    for mine, (p, _T2, sigma) in zip(
+            members, tested_without(result, P_all, held, members, seed=int(loops[idx[0]])),
+            strict=True):
+        out[mine[(p >= p_alarm) & (sigma <= power_m)]] = True
     return out, (held, P_all, st_all)
 
 
@@ -283,6 +279,33 @@ def leave_cluster_out(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
     return out
 
 
+def tested_without(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
+                   clusters: list[NDArray[np.intp]], seed: int, own_factor: bool = False
+                   ) -> list[tuple[F, F, F]]:
+    """Per cluster (table rows of loops in the map of ``in_map`` at ``P``): every one of its
+    loops' p, T² and map σ (m) against the map without the cluster (:func:`leave_cluster_out`),
+    after the variance factor of the map (:func:`map_test` with ``seed``) or, with
+    ``own_factor``, of the map's loops outside the cluster (a cluster in the map inflates the
+    factor of the map that holds it)."""
+    g = result.graph
+    system = map_system(result, P, in_map)
+    m = map_test(result, P, in_map, seed=seed, system=system)
+    s0_map = float(m["sigma0_sq"][0])
+    raw = m["T2"] * s0_map
+    median_chi2 = float(chi2_dist.ppf(0.5, g.k))
+    out = []
+    for rows, (T2, var) in zip(clusters, leave_cluster_out(result, P, in_map, clusters, system),
+                               strict=True):
+        s0 = s0_map
+        if own_factor:
+            rest = in_map.copy()
+            rest[rows] = False
+            s0 = max(float(np.median(raw[rest])) / median_chi2, 1e-12) \
+                if rest.sum() >= MIN_VARIANCE_LOOPS else 1.0
+        out.append((chi2_dist.sf(T2 / s0, g.k), T2 / s0, np.sqrt(var * s0)))
+    return out
+
+
 def _leave_out(result: LoopAudit, P: F, in_map: NDArray[np.bool_], mine: NDArray[np.bool_],
                seed: int) -> tuple[float, float]:
     """Median p and T² of the loops ``mine`` against the map of ``in_map`` without them,
@@ -306,21 +329,9 @@ def _group_suspects(result: LoopAudit, P: F, in_map: NDArray[np.bool_], group: N
     6.1 of the audit's 7.9 s)."""
     if not ids:
         return []
-    g = result.graph
-    system = map_system(result, P, in_map)
-    m = map_test(result, P, in_map, seed=0, system=system)
-    raw = m["T2"] * m["sigma0_sq"]
     members = [np.flatnonzero(in_map & (group == gid)) for gid in ids]
-    tests = leave_cluster_out(result, P, in_map, members, system)
-    median_chi2 = float(chi2_dist.ppf(0.5, g.k))
-    out = []
-    for gid, (T2, _var) in zip(ids, tests, strict=True):
-        rest = in_map & (group != gid)
-        s0 = max(float(np.median(raw[rest])) / median_chi2, 1e-12) \
-            if rest.sum() >= MIN_VARIANCE_LOOPS else 1.0
-        if float(np.median(chi2_dist.sf(T2 / s0, g.k))) < PRE_P:
-            out.append(gid)
-    return out
+    tests = tested_without(result, P, in_map, members, seed=0, own_factor=True)
+    return [gid for gid, (p, _T2, _s) in zip(ids, tests, strict=True) if np.median(p) < PRE_P]
 
 
 def screened_groups(group: NDArray[np.int64], in_map: NDArray[np.bool_]) -> list[int]:
@@ -466,13 +477,10 @@ def _screen_runs(result: LoopAudit, P: F, in_map: NDArray[np.bool_], p_alarm: fl
         found: dict[int, tuple[float, float]] = {}
         if not ids:
             return found
-        system = map_system(result, P, out)
-        s0 = float(map_test(result, P, out, seed=len(gone) + 1, system=system)["sigma0_sq"][0])
-        tests = leave_cluster_out(result, P, out, [left[i] for i in ids], system)
-        for i, (T2, _var) in zip(ids, tests, strict=True):
-            p = float(np.median(chi2_dist.sf(T2 / s0, g.k)))
-            if p < p_alarm:
-                found[i] = (p, -float(np.median(T2 / s0)))
+        tests = tested_without(result, P, out, [left[i] for i in ids], seed=len(gone) + 1)
+        for i, (p, T2, _s) in zip(ids, tests, strict=True):
+            if np.median(p) < p_alarm:
+                found[i] = (float(np.median(p)), -float(np.median(T2)))
         return found
 
     # The exact test costs one back-substitution per residual row of the runs tested (3 900 on
