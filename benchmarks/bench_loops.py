@@ -138,7 +138,9 @@ def main() -> int:
                 recall = float(refused[fl].mean()) if fl.any() else float("nan")
                 retain = float((~refused[~fl]).mean())
                 # the false loops are appended after the clean graph's edges
-                mine = ~fl & self_kept[np.minimum(t["edge"].to_numpy(), clean.n_edges - 1)]
+                kept_clean = np.zeros(g.n_edges, bool)
+                kept_clean[:clean.n_edges] = self_kept
+                mine = kept_clean[t["edge"].to_numpy()]
                 retain_self = float((~refused[mine]).mean())
                 kept, every_g = res.kept_edges(), np.ones(g.n_edges, bool)
                 P_kept, _ = solve(g, kept, start(g, kept))
