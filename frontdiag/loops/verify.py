@@ -76,10 +76,11 @@ MIN_VARIANCE_LOOPS = 10  # loops in the map below which the variance factor is n
 # up to ~1e-4 of the cost (intel 105.254 / 105.265, CSAIL 3e-7), a different basin by far more
 # (sphere2500 712 / 9 081, docs/loops.md).
 RESTART_GAIN = 0.01
-# A run goes to the exact leave-run-out test when its joint test against the map, from the map
-# test's draws, reads p under this: loose against p_alarm (1e-6), since the sampled joint test
-# is the weaker one (64 draws for up to 32 rows), and one true run in a hundred costs a few
-# back-substitutions.
+# The line of the two pre-tests, loose against p_alarm (1e-6): a run goes to the exact
+# leave-run-out test when its joint test from the map test's draws (the weaker test: 64 draws
+# for up to 32 rows) reads p under it, and one true run in a hundred costs a few
+# back-substitutions; a group is re-solved when its linearised leave-group-out test reads a
+# median p under it, which spares the groups far from refuted and nothing near the line.
 PRE_P = 0.01
 
 
