@@ -603,6 +603,10 @@ def test_normal_equations_on_the_fixed_pattern_equal_the_full_assembly(dim: int)
     ref3 = np.zeros((n, 2, 3))
     np.add.at(ref3, src, vals)
     assert np.allclose(scatter_add(src, vals, n), ref3)
+    wide = rng.normal(size=(len(src), 3, 64))  # the map test's draws: the incidence product
+    ref64 = np.zeros((n, 3, 64))
+    np.add.at(ref64, src, wide)
+    assert np.allclose(scatter_add(src, wide, n), ref64, rtol=1e-12, atol=1e-12)
 
 
 def _noisy_graph(dim: int, seed: int) -> tuple[object, np.ndarray]:

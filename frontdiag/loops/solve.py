@@ -77,6 +77,10 @@ def scatter_add(idx: NDArray[np.int64], vals: F, n: int) -> F:
     for wide rows (the map test's 64 draws a row) as the product of the 0/1 incidence matrix
     with the rows, five times faster there (M3500: 7.7 against 1.5 ms for 5 400 rows of 192)."""
     w = int(np.prod(vals.shape[1:], dtype=np.int64))
+    m = idx.shape[0]
+    if w >= 32:
+        A = sp.csr_matrix((np.ones(m), (idx, np.arange(m))), shape=(n, m))
+        return np.asarray(A @ vals.reshape(m, w)).reshape((n, *vals.shape[1:]))
     flat = (idx[:, None] * w + np.arange(w)).ravel()
     out = np.bincount(flat, weights=vals.reshape(-1), minlength=n * w)
     return out.reshape((n, *vals.shape[1:]))

@@ -132,13 +132,14 @@ def map_test(result: LoopAudit, P: F, in_map: NDArray[np.bool_], seed: int = 0,
     noise = rng.standard_normal((g.n_edges, k, N_DRAWS))
     # Aᵀ n for the map's edges
     Wi, Wj = lin.U @ lin.Je_i, lin.U @ lin.Je_j
-    b = scatter_add(g.src[sel], np.einsum("mji,mjs->mis", Wi, noise[sel]), n) \
-        + scatter_add(g.dst[sel], np.einsum("mji,mjs->mis", Wj, noise[sel]), n)
+    ns = noise[sel]
+    b = scatter_add(g.src[sel], np.swapaxes(Wi, -1, -2) @ ns, n) \
+        + scatter_add(g.dst[sel], np.swapaxes(Wj, -1, -2) @ ns, n)
     dx = -fac.solve(b.reshape(n * k, N_DRAWS)).reshape(n, k, N_DRAWS)
     a, bb = g.src[loops], g.dst[loops]
     Ji, Jj = lin_all.Je_i[loops], lin_all.Je_j[loops]
-    d_rel = np.einsum("mij,mjs->mis", Jj, dx[bb]) + np.einsum("mij,mjs->mis", Ji, dx[a])
-    own = np.einsum("mij,mjs->mis", np.linalg.inv(U_all[loops]), noise[loops])
+    d_rel = Jj @ dx[bb] + Ji @ dx[a]
+    own = np.linalg.inv(U_all[loops]) @ noise[loops]
     draws = own + d_rel
     S = np.einsum("mis,mjs->mij", draws, draws) / N_DRAWS
     e = e_all[loops]
