@@ -349,7 +349,7 @@ def test_chordal_start_recovers_exact_poses(dim: int) -> None:
 
 def test_solve_from_the_chordal_start_reaches_the_lower_minimum() -> None:
     """intel: from the odometry chain LM is still far from the optimum after its 50 iterations
-    (cost 128 827; 62 544 after 200); from the chordal start it reaches cost ~216."""
+    (cost 44 114; 491 after 200); from the chordal start it reaches cost ~216."""
     from frontdiag.loops.chain import build_chain
     from frontdiag.loops.init import chordal_init
     from frontdiag.loops.solve import solve
@@ -1271,15 +1271,16 @@ def test_the_result_folder_holds_a_picture_of_the_map_with_every_loop(tmp_path: 
 
 
 def test_solve_converges_in_few_iterations_on_a_long_chain() -> None:
-    """A 2000-pose walk with 100 loops, every measurement bent by 0.02 m / rad, solved from its
-    odometry chain: the gain-ratio damping from 1e-6 reaches the optimum in 7 iterations. A
-    damping of 1e-4·diag divided by 3 a step held the chain's long bends (eigenvalues near
-    diag·(π/n)²) back and took 14; with 3500 poses it ran to the 50-iteration cap."""
+    """A 3500-pose walk with 200 loops, every measurement bent by 0.02 m / rad, solved from its
+    odometry chain: Nielsen's damping from 1e-8 reaches the optimum in 11 iterations. A damping
+    of 1e-4·diag divided by 3 a step held the chain's long bends (eigenvalues near
+    diag·(π/n)²) back and was still descending at the 50-iteration cap (cost 587.1488 against
+    587.1482)."""
     from frontdiag.loops import lie
     from frontdiag.loops.chain import build_chain
     from frontdiag.loops.solve import solve
 
-    g, _ = _exact_graph(2, 2000, seed=3, loops=100)
+    g, _ = _exact_graph(2, 3500, seed=3, loops=200)
     rng = np.random.default_rng(4)
     g.Z[:] = g.Z @ lie.exp(rng.normal(0, 0.02, (g.n_edges, g.k)), 2)
     g.info[:] = np.eye(3) / 0.02**2
@@ -1288,5 +1289,5 @@ def test_solve_converges_in_few_iterations_on_a_long_chain() -> None:
     _, st = solve(g, every, chain)
     _, tight = solve(g, every, chain, tol=1e-13, max_iters=200)
     assert st["converged"] == 1.0
-    assert st["iterations"] <= 8
+    assert st["iterations"] <= 20
     assert st["cost"] == pytest.approx(tight["cost"], rel=1e-8)

@@ -1,8 +1,8 @@
 """Chordal initialisation of a pose graph: rotations first, then translations, both linear.
 
 Levenberg–Marquardt from the odometry chain can stop far from the optimum when the chain has
-drifted: on the intel graph (1228 edges) it is at a cost of 128 827 after its 50 iterations
-(62 544 after 200, still descending) against 216 from this start, a map 6.9 m (ATE) away from
+drifted: on the intel graph (1228 edges) it is at a cost of 44 114 after its 50 iterations
+(491 after 200, still descending) against 216 from this start, a map 6.0 m (ATE) away from
 the optimum, and every loop tested against that map reads as wrong. The chordal relaxation
 (Martinec & Pajdla 2007; Carlone, Tron, Daniilidis & Dellaert 2015) avoids the non-convexity
 of the rotations:

@@ -26,7 +26,7 @@ log = logging.getLogger(__name__)
 
 F = NDArray[np.float64]
 GAUGE_INFO = 1e10
-LM_LAMBDA0 = 1e-6
+LM_LAMBDA0 = 1e-8
 """Levenberg–Marquardt's first damping, relative to the diagonal (see :func:`solve`)."""
 
 
@@ -217,20 +217,24 @@ def solve(graph: PoseGraph, edges: NDArray[np.bool_], init: F, *, max_iters: int
     before the relative decrease of the cost fell under ``tol``, with the last accepted step's
     decrease in ``last_rel_decrease``).
 
-    The damping is Marquardt's (``lam`` times the diagonal), updated by the gain ratio ρ of the
-    actual to the predicted decrease (Madsen, Nielsen & Tingleff 2004, "Methods for non-linear
-    least squares problems", §3.2; Nocedal & Wright, trust regions): a step the quadratic model
-    predicted well (ρ > 0.75) divides it by 10, a poor one (ρ < 0.25) multiplies it by 3, a step
-    that raises the cost is refused and multiplies it by 10. It starts at 1e-6. A pose chain's
-    long bends have eigenvalues of order 1/n² of the diagonal (n poses), so a damping of 1e-4
-    that fell by 3 per step held them back for some ten steps and the cost fell linearly
-    (M3500: 10–22 iterations a solve, 4–10 now, to the same minimum)."""
+    The damping is Marquardt's (``lam`` times the diagonal), updated by Nielsen's rule from the
+    gain ratio ρ of the actual to the model's decrease (Madsen, Nielsen & Tingleff 2004,
+    "Methods for non-linear least squares problems", §3.2): an accepted step multiplies it by
+    max(1/3, 1 − (2ρ − 1)³), so it falls where the quadratic model holds and stays where it
+    barely does; a step that raises the cost is refused and multiplies it by ν, which doubles
+    with each refusal in a row. A pose chain's long bends have eigenvalues near (π/n)² of the
+    diagonal (n poses; 8e-7 for M3500's 3500), and a damping above that holds them back, so the
+    cost falls linearly: from 1e-4, divided by 3 per step, M3500's solves took 10–22 iterations.
+    It starts at 1e-8, under that line for graphs up to some 30 000 poses; where the quadratic
+    model overshoots, a few refusals raise it (ν doubles). A fixed factor of 10 down and up
+    instead made intel's solves with false loops in the map alternate between a refused and an
+    accepted step up to the iteration cap."""
     sel = np.flatnonzero(edges)
     src, dst, Z = graph.src[sel], graph.dst[sel], graph.Z[sel]
     U = _chol_upper(graph.info[sel])
     n, k, d = graph.n_vertices, graph.k, graph.dim
     P = init.copy()
-    lam = LM_LAMBDA0
+    lam, nu = LM_LAMBDA0, 2.0
     pattern = UpperPattern(src, dst, n, k)
     lin = linearise(P, src, dst, Z, U, n)
     cost = float(lin.r @ lin.r)
@@ -256,15 +260,14 @@ def solve(graph: PoseGraph, edges: NDArray[np.bool_], init: F, *, max_iters: int
             rel = (cost - new_cost) / max(cost, 1e-300)
             rho = (cost - new_cost) / max(predicted, 1e-300)
             P, lin, cost = P_new, lin_new, new_cost
-            if rho > 0.75:
-                lam = max(lam / 10.0, 1e-12)
-            elif rho < 0.25:
-                lam *= 3.0
+            lam = max(lam * max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), 1e-12)
+            nu = 2.0
             if rel < tol:
                 converged = True
                 break
         else:
-            lam *= 10.0
+            lam *= nu
+            nu *= 2.0
             if lam > 1e8:  # no step lowers the cost: a minimum, to numerical precision
                 converged = True
                 break

@@ -579,7 +579,7 @@ def verify_against_map(result: LoopAudit) -> None:
                 P_warm, st_warm = solve(g, edges, P, tol=1e-6)
             if r == 1 or (prev is not None and (prev & ~in_map).any()):
                 # also from the chordal start of this round's edges. The first map's chain
-                # start was 6.9 m from the optimum on intel after 50 iterations: the lower
+                # start was 6.0 m from the optimum on intel after 50 iterations: the lower
                 # cost is kept. A later round that dropped loops restarts too: the dropped
                 # loops had bent the map before it, and LM from there can stop at a minimum of
                 # their basin (sphere2500 with random false loops: 9 081 from the map that
