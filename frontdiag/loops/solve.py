@@ -74,8 +74,8 @@ def linearise(P: F, src: NDArray[np.int64], dst: NDArray[np.int64], Z: F, U: F,
 
 def scatter_add(idx: NDArray[np.int64], vals: F, n: int) -> F:
     """``out[idx[m]] += vals[m]`` over the first axis (``np.add.at``): by one ``bincount``, or
-    for wide rows (the map test's 64 draws a row) as the product of the 0/1 incidence matrix
-    with the rows, five times faster there (M3500: 7.7 against 1.5 ms for 5 400 rows of 192)."""
+    for rows of 32 values or more (the map test's 64 draws a row) as the product of the 0/1
+    incidence matrix with the rows: on M3500's 5 400 rows of 192, 0.7 ms against 5–7 ms."""
     w = int(np.prod(vals.shape[1:], dtype=np.int64))
     m = idx.shape[0]
     if w >= 32:
