@@ -9,7 +9,10 @@ the map stiffens round by round and a group of mutually consistent false loops, 
 test can refute, meets a map built without it. A true loop refused next to a false one
 (swamping) comes back once the false one is out. The rounds stop when the set no longer
 changes, or ``max_rounds`` after the first map whose solve converged (after ``max_rounds`` if
-none has by then).
+none has by then). Loops that contradict one another but not the rest enter and leave the map
+together, round after round; when a round's next map is one an earlier round already tested,
+the loops not in every map since then leave it for good and are judged against the maps of the
+others (kept where they pass there with power and are too small to fold the map).
 
 Loops that pass but never with power (the map too loose between their poses: a stretch that
 only they join) are then tested cluster by cluster against the map holding the other such
@@ -542,6 +545,7 @@ def verify_against_map(result: LoopAudit) -> None:
     taken = np.zeros(len(t), bool)  # and their loops that were in it
     barred_runs: list[NDArray[np.intp]] = []  # runs the run screen took out, judged whole
     run_out = np.zeros(len(t), bool)  # the loops of those still out
+    contested = np.zeros(len(t), bool)  # loops of a cycle of rounds: out of the map for good
 
     def over_budget(n_groups: int) -> bool:
         """Whether the screen's solves (up to one per group, each over every pose) exceed
@@ -571,7 +575,9 @@ def verify_against_map(result: LoopAudit) -> None:
         # stop there as before. ``solved``: the first round's map, if already solved from P
         end = first + max_rounds
         converged_once = False
+        states: list[bytes] = []  # the loops of each round's map, in order
         for r in itertools.count(first):
+            states.append(in_map.tobytes())
             edges = map_edges(result, in_map)
             if r == first and solved is not None and np.array_equal(solved[0], in_map):
                 P_warm, st_warm = solved[1], solved[2]  # the same solve, from the same P
@@ -623,9 +629,21 @@ def verify_against_map(result: LoopAudit) -> None:
             # admit a loop only once its test had power: map σ small enough to refute a lie
             # of a few fold_m (5.5 σ at p = 1e-6); a passing loop already in the map stays
             nxt = (res["p"] >= p_alarm) & (in_map | (res["map_sigma_m"] <= power_m)) \
-                & ~(chain_refused & ~_stiffer(res, chain_sigma, overrule)) & ~run_out
+                & ~(chain_refused & ~_stiffer(res, chain_sigma, overrule)) & ~run_out \
+                & ~contested
             if np.array_equal(nxt, in_map) or r >= end:
                 break
+            if nxt.tobytes() in states:
+                # a cycle: the next map is one an earlier round already tested, so the rounds
+                # would repeat it until max_rounds and stop wherever the cap falls. Loops that
+                # contradict one another but not the rest (CSAIL's 387→526 and 387→527: both
+                # in, both refuted; both out, both pass) enter and leave together. The loops
+                # not in every map of the cycle leave it for good and are judged against the
+                # maps of the others
+                cyc = [np.frombuffer(b, dtype=bool) for b in
+                       states[states.index(nxt.tobytes()):]]
+                contested[:] |= np.logical_or.reduce(cyc) & ~np.logical_and.reduce(cyc)
+                nxt &= ~contested
             prev, in_map = in_map, nxt
             was_in[:] |= in_map
         return in_map, P, res, r
@@ -704,14 +722,28 @@ def verify_against_map(result: LoopAudit) -> None:
             else:
                 reason[i] = f"{reason[i]}; also {m}"
         elif not in_map[i]:
-            # passed, but not admitted: never with power, or the rounds stopped first
-            if verdict[i] != "ok":
-                reason[i] = f"was {rule[i]} ({reason[i]}); "
-            else:
-                reason[i] = ""
-            verdict[i], rule[i] = r4.severity, r4.id
+            # passed, but not admitted: never with power, the rounds stopped first, or a cycle
+            # of rounds took it out
+            was = f"was {rule[i]} ({reason[i]}); " if verdict[i] != "ok" else ""
             sig = res["map_sigma_m"][i]
-            if not sig <= power_m:
+            cycle = (f"it passes against the last map (σ {sig:.2f} m), but it entered and left "
+                     "the map with loops it contradicts in a cycle of rounds, and stays out of it")
+            if contested[i] and sig <= power_m and res["fold_m"][i] <= fold_m \
+                    and res["residual_m"][i] <= fold_m:
+                # as a loop refuted by the map but too small to fold it is kept (above)
+                verdict[i], rule[i] = "ok", ""
+                reason[i] = (f"{was}kept: {cycle}; believing it moves the map by "
+                             f"{res['fold_m'][i]:.2f} m and it is {res['residual_m'][i]:.2f} m "
+                             f"from it (both <= fold_m {fold_m:g} m of {r4.id}), too little to "
+                             f"fold it; {m}")
+                continue
+            reason[i] = was
+            verdict[i], rule[i] = r4.severity, r4.id
+            if contested[i] and sig <= power_m:
+                reason[i] += (f"not verified: {cycle}; believing it would move the map by "
+                              f"{res['fold_m'][i]:.2f} m and it is {res['residual_m'][i]:.2f} m "
+                              f"from it (not both <= fold_m {fold_m:g} m); {m}")
+            elif not sig <= power_m:
                 reason[i] += (f"not verified: the map between its poses is uncertain to "
                               f"{sig:.2f} m (> {power_m:g} m), too loose to refute a lie; {m}")
             elif was_in[i]:
