@@ -159,9 +159,10 @@ def test_a_cycle_of_rounds_stops_and_its_loops_are_judged_outside_the_map(
     assert res.timings["map_rounds"] < 8
     assert calls[:2] == [True, False] and calls.count(True) == 1
     assert not t["in_map"].iloc[pair].any()
-    for i in pair:
+    for i, other in zip(pair, ["8→48", "6→46"], strict=True):
         reason = t["reason"].iat[i]
         assert "entered and left the map with loops it contradicts in a cycle of rounds" in reason
+        assert f"(the cycle's other loops: {other})" in reason
         if kept:
             assert t["verdict"].iat[i] == "ok" and reason.startswith("kept: it passes")
         else:

@@ -693,6 +693,8 @@ def verify_against_map(result: LoopAudit) -> None:
     s0 = float(res["sigma0_sq"][0]) if res["sigma0_sq"].size else 1.0
     stands = chain_refused & ~_stiffer(res, chain_sigma, overrule)
     raw_sigma = _raw_sigma(res)
+    t_i, t_j = t["i"].to_numpy(), t["j"].to_numpy()
+    cycle_loops = list(zip(t_i[contested].tolist(), t_j[contested].tolist(), strict=True))
     for i in range(len(t)):
         m = (f"against the map of {int(in_map.sum())} verified loops: residual "
              f"{res['residual_m'][i]:.2f} m / {res['residual_deg'][i]:.1f}°, "
@@ -726,8 +728,11 @@ def verify_against_map(result: LoopAudit) -> None:
             # of rounds took it out
             was = f"was {rule[i]} ({reason[i]}); " if verdict[i] != "ok" else ""
             sig = res["map_sigma_m"][i]
+            others = [f"{a}→{b}" for a, b in cycle_loops if (a, b) != (t_i[i], t_j[i])]
             cycle = (f"it passes against the last map (σ {sig:.2f} m), but it entered and left "
-                     "the map with loops it contradicts in a cycle of rounds, and stays out of it")
+                     "the map with loops it contradicts in a cycle of rounds, and stays out of it "
+                     f"(the cycle's other loops: {', '.join(others[:5]) or 'none'}"
+                     f"{', …' if len(others) > 5 else ''})")
             if contested[i] and sig <= power_m and res["fold_m"][i] <= fold_m \
                     and res["residual_m"][i] <= fold_m:
                 # as a loop refuted by the map but too small to fold it is kept (above)
