@@ -12,7 +12,8 @@ changes, or ``max_rounds`` after the first map whose solve converged (after ``ma
 none has by then). Loops that contradict one another but not the rest enter and leave the map
 together, round after round; when a round's next map is one an earlier round already tested,
 the loops not in every map since then leave it for good and are judged against the maps of the
-others (kept where they pass there with power and are too small to fold the map).
+others (kept where they pass there with power and are too small to fold the map). So does a
+loop that leaves the map for the ``max_leaves``-th time, where the maps do not repeat exactly.
 
 Loops that pass but never with power (the map too loose between their poses: a stretch that
 only they join) are then tested cluster by cluster against the map holding the other such
@@ -546,6 +547,8 @@ def verify_against_map(result: LoopAudit) -> None:
     barred_runs: list[NDArray[np.intp]] = []  # runs the run screen took out, judged whole
     run_out = np.zeros(len(t), bool)  # the loops of those still out
     contested = np.zeros(len(t), bool)  # loops of a cycle of rounds: out of the map for good
+    leaves = np.zeros(len(t), np.int64)  # times each loop left the map from one round to the next
+    max_leaves = int(r3.param("max_leaves")) if "max_leaves" in r3.params else 0
 
     def over_budget(n_groups: int) -> bool:
         """Whether the screen's solves (up to one per group, each over every pose) exceed
@@ -644,6 +647,13 @@ def verify_against_map(result: LoopAudit) -> None:
                        states[states.index(nxt.tobytes()):]]
                 contested[:] |= np.logical_or.reduce(cyc) & ~np.logical_and.reduce(cyc)
                 nxt &= ~contested
+            leaves[:] += in_map & ~nxt
+            if max_leaves and (leaves >= max_leaves).any():
+                # the maps need not repeat exactly for a loop to go in and out (intel's do not):
+                # one swamped by a false loop leaves once and comes back once that is out; one
+                # leaving again is borderline and leaves for good (FD-LOP-003's max_leaves)
+                contested[:] |= leaves >= max_leaves
+                nxt &= ~contested
             prev, in_map = in_map, nxt
             was_in[:] |= in_map
         return in_map, P, res, r
@@ -729,10 +739,15 @@ def verify_against_map(result: LoopAudit) -> None:
             was = f"was {rule[i]} ({reason[i]}); " if verdict[i] != "ok" else ""
             sig = res["map_sigma_m"][i]
             others = [f"{a}→{b}" for a, b in cycle_loops if (a, b) != (t_i[i], t_j[i])]
-            cycle = (f"it passes against the last map (σ {sig:.2f} m), but it entered and left "
-                     "the map with loops it contradicts in a cycle of rounds, and stays out of it "
-                     f"(the cycle's other loops: {', '.join(others[:5]) or 'none'}"
-                     f"{', …' if len(others) > 5 else ''})")
+            if leaves[i] >= max_leaves > 0:
+                cycle = (f"it passes against the last map (σ {sig:.2f} m), but it left the map "
+                         f"{leaves[i]} times in the rounds, its test turning with the loops "
+                         "around it, and stays out of it")
+            else:
+                cycle = (f"it passes against the last map (σ {sig:.2f} m), but it entered and "
+                         "left the map with loops it contradicts in a cycle of rounds, and stays "
+                         f"out of it (the cycle's other loops: {', '.join(others[:5]) or 'none'}"
+                         f"{', …' if len(others) > 5 else ''})")
             if contested[i] and sig <= power_m and res["fold_m"][i] <= fold_m \
                     and res["residual_m"][i] <= fold_m:
                 # as a loop refuted by the map but too small to fold it is kept (above)
