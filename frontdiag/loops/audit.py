@@ -64,6 +64,9 @@ class LoopAudit:
     """FD-LOP-005's edges (odometry and loops), None without that rule."""
     capped: bool = False
     """Whether ``graph`` holds their information capped (the file's otherwise)."""
+    tested_maps: list[tuple[Any, Any, Any]] = field(default_factory=list, repr=False,
+                                                     compare=False)
+    """The map test's last maps (``verify.tested_map``), reused within this audit only."""
 
     def kept_edges(self) -> np.ndarray:
         """Edges (odometry and loops) of the graph without the refuted loops."""
