@@ -182,7 +182,7 @@ def tested_map(result: LoopAudit, P: F, in_map: NDArray[np.bool_], seed: int
     ``P``, or those of the same map already tested in this audit: the run screen tests the map
     the last round tested, and the round after a corroboration the map the corroboration
     tested; a second test would only redraw (M3500 with 10 % local false loops: 2 of 9 map
-    tests, 0.13 s of 0.95)."""
+    tests; the audit 1.13x faster, median of 30 M3500 runs)."""
     key = (hashlib.blake2b(np.ascontiguousarray(P).tobytes(), digest_size=16).digest(),
            in_map.tobytes())
     for k, system, res in result.tested_maps:
