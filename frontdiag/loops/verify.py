@@ -700,6 +700,7 @@ def verify_against_map(result: LoopAudit) -> None:
             barred_runs.extend(runs[i] for i in gone)
             in_map, P, res, rounds = run_rounds(kept, P_runs, rounds + 1)
     result.map_poses = P
+    result.tested_maps.clear()  # their factorisations and draws are not needed past here
     if last and not last.get("converged", 1.0):
         result.notes.append(
             f"the last map's solve stopped at its {int(last['iterations'])}-iteration cap before "
