@@ -211,7 +211,7 @@ class Factor:
 
 
 def solve(graph: PoseGraph, edges: NDArray[np.bool_], init: F, *, max_iters: int = 50,
-          tol: float = 1e-7) -> tuple[F, dict[str, float]]:
+          tol: float = 1e-7, keep: list[object] | None = None) -> tuple[F, dict[str, float]]:
     """Levenberg–Marquardt on the selected edges from ``init``; returns poses and stats
     (``iterations``, ``cost_initial``, ``cost``; ``converged`` 0 where the iterations ran out
     before the relative decrease of the cost fell under ``tol``, with the last accepted step's
@@ -228,7 +228,11 @@ def solve(graph: PoseGraph, edges: NDArray[np.bool_], init: F, *, max_iters: int
     It starts at 1e-8, under that line for graphs up to some 30 000 poses; where the quadratic
     model overshoots, a few refusals raise it (ν doubles). A fixed factor of 10 down and up
     instead made intel's solves with false loops in the map alternate between a refused and an
-    accepted step up to the iteration cap."""
+    accepted step up to the iteration cap.
+
+    ``keep``, a list, receives the edges, the fixed pattern and the last factorisation, so that
+    a test of the same map refactorises their structure (``Factor.update``) instead of ordering
+    it again."""
     sel = np.flatnonzero(edges)
     src, dst, Z = graph.src[sel], graph.dst[sel], graph.Z[sel]
     U = _chol_upper(graph.info[sel])
@@ -271,5 +275,7 @@ def solve(graph: PoseGraph, edges: NDArray[np.bool_], init: F, *, max_iters: int
             if lam > 1e8:  # no step lowers the cost: a minimum, to numerical precision
                 converged = True
                 break
+    if keep is not None and fac is not None:
+        keep[:] = [edges.copy(), pattern, fac]
     return P, {"iterations": float(it), "cost_initial": first, "cost": cost,
                "converged": float(converged), "last_rel_decrease": rel}

@@ -61,6 +61,7 @@ from frontdiag.loops.init import chordal_init
 from frontdiag.loops.solve import (
     Factor,
     Linearised,
+    UpperPattern,
     _chol_upper,
     linearise,
     normal_equations,
@@ -108,17 +109,27 @@ class MapSystem:
     fac: Factor
 
 
-def map_system(result: LoopAudit, P: F, in_map: NDArray[np.bool_]) -> MapSystem:
+def map_system(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
+               solved: list[object] | None = None) -> MapSystem:
     """Linearise every edge at P and factorise the normal matrix of the map's edges (the work
-    :func:`map_test` and :func:`leave_cluster_out` share)."""
+    :func:`map_test` and :func:`leave_cluster_out` share). ``solved``: what ``solve(keep=)``
+    kept from the solve of this map, whose pattern and ordering are then reused (the same
+    factor: only the values are computed again)."""
     g = result.graph
     n, k = g.n_vertices, g.k
-    sel = np.flatnonzero(map_edges(result, in_map))
+    edges = map_edges(result, in_map)
+    sel = np.flatnonzero(edges)
     U_all = _chol_upper(g.info)
     lin_all = linearise(P, g.src, g.dst, g.Z, U_all, n)
     # the map's edges are a subset of every edge: take their linearisation from lin_all
     lin = Linearised(r=lin_all.r.reshape(-1, k)[sel].ravel(), U=U_all[sel],
                      Je_i=lin_all.Je_i[sel], Je_j=lin_all.Je_j[sel], e=lin_all.e[sel])
+    pattern, fac = (solved[1], solved[2]) if solved else (None, None)
+    if solved and isinstance(solved[0], np.ndarray) and np.array_equal(solved[0], edges) \
+            and isinstance(pattern, UpperPattern) and isinstance(fac, Factor):
+        H, _ = normal_equations(lin, g.src[sel], g.dst[sel], n, 0.0, pattern)
+        fac.update(H)  # the solve is over: its factor is ours
+        return MapSystem(lin_all, sel, lin, fac)
     H, _ = normal_equations(lin, g.src[sel], g.dst[sel], n, 0.0)
     return MapSystem(lin_all, sel, lin, Factor(H))
 
@@ -176,8 +187,8 @@ TESTED_KEPT = 2
 """How many tested maps an audit keeps for :func:`tested_map`."""
 
 
-def tested_map(result: LoopAudit, P: F, in_map: NDArray[np.bool_], seed: int
-               ) -> tuple[MapSystem, dict[str, F]]:
+def tested_map(result: LoopAudit, P: F, in_map: NDArray[np.bool_], seed: int,
+               solved: list[object] | None = None) -> tuple[MapSystem, dict[str, F]]:
     """:func:`map_system` and :func:`map_test` (with ``seed``) of the map of ``in_map`` at
     ``P``, or those of the same map already tested in this audit: the run screen tests the map
     the last round tested, and the round after a corroboration the map the corroboration
@@ -188,7 +199,7 @@ def tested_map(result: LoopAudit, P: F, in_map: NDArray[np.bool_], seed: int
     for k, system, res in result.tested_maps:
         if k == key:
             return system, res
-    system = map_system(result, P, in_map)
+    system = map_system(result, P, in_map, solved)
     res = map_test(result, P, in_map, seed=seed, system=system)
     result.tested_maps[:] = [*result.tested_maps, (key, system, res)][-TESTED_KEPT:]
     return system, res
@@ -606,8 +617,10 @@ def verify_against_map(result: LoopAudit) -> None:
             edges = map_edges(result, in_map)
             if r == first and solved is not None and np.array_equal(solved[0], in_map):
                 P_warm, st_warm = solved[1], solved[2]  # the same solve, from the same P
+                factored: list[object] = []
             else:
-                P_warm, st_warm = solve(g, edges, P, tol=1e-6)
+                factored = []
+                P_warm, st_warm = solve(g, edges, P, tol=1e-6, keep=factored)
             if r == 1 or (prev is not None and (prev & ~in_map).any()):
                 # also from the chordal start of this round's edges. The first map's chain
                 # start was 6.0 m from the optimum on intel after 50 iterations: the lower
@@ -620,7 +633,8 @@ def verify_against_map(result: LoopAudit) -> None:
                 # loops were kept). Two minima are told apart by cost beyond the solver's own
                 # precision (RESTART_GAIN); a round that only adds verified loops starts from
                 # the map before it.
-                P_c, st_c = solve(g, edges, chordal_init(g, edges, P), tol=1e-6)
+                P_c, st_c = solve(g, edges, chordal_init(g, edges, P), tol=1e-6,
+                                 keep=factored)
                 line = st_warm["cost"] if r == 1 else st_warm["cost"] * (1 - RESTART_GAIN)
                 if st_c["cost"] < line:
                     P_warm, st_warm = P_c, st_c
@@ -642,7 +656,8 @@ def verify_against_map(result: LoopAudit) -> None:
                     continue
             last.clear()
             last.update(st)
-            _, res = tested_map(result, P, in_map, r)
+            # either solve's factor has this map's pattern: the last one kept is reused
+            _, res = tested_map(result, P, in_map, r, factored)
             # a run the run screen took out is judged as a whole: it comes back (its loops then
             # as any other) once the median p of its loops, each tested against this map, which
             # holds none of them, passes; until then none of its loops joins, since its loops
