@@ -209,22 +209,22 @@ def test_the_map_test_refactorises_the_solves_structure_to_the_same_factor(
     """map_system given what solve(keep=) kept from the solve of the same map reuses its
     pattern and ordering (numeric refactorisation only) and gives the same system as a fresh
     factorisation; given the solve of another edge set it builds its own."""
-    from frontdiag.loops.solve import solve
+    from frontdiag.loops.solve import Structure, solve
     from frontdiag.loops.verify import map_edges, map_system
 
     path = _square_graph(tmp_path / "sq.g2o", [(k, 40 + k, 0.0) for k in range(0, 40, 2)])
     res = audit(read_graph(path))
     g, in_map = res.graph, res.table["in_map"].to_numpy()
-    kept: list[object] = []
+    kept: list[Structure] = []
     P, _ = solve(g, map_edges(res, in_map), res.map_poses, tol=1e-6, keep=kept)
     fresh = map_system(res, P, in_map)
-    reused = map_system(res, P, in_map, kept)
-    assert reused.fac is kept[2]
+    reused = map_system(res, P, in_map, kept[0])
+    assert reused.fac is kept[0].factor
     b = np.random.default_rng(0).standard_normal((g.n_vertices * g.k, 4))
     np.testing.assert_allclose(reused.fac.solve(b), fresh.fac.solve(b), rtol=1e-12, atol=0)
     other = in_map.copy()
     other[np.flatnonzero(in_map)[0]] = False
-    assert map_system(res, P, other, kept).fac is not kept[2]
+    assert map_system(res, P, other, kept[0]).fac is not kept[0].factor
 
 
 def test_csails_rounds_settle_before_the_cap_and_keep_every_published_loop() -> None:

@@ -210,8 +210,19 @@ class Factor:
         return np.stack([np.asarray(self._f.solve(np.ascontiguousarray(c))) for c in b.T], axis=1)
 
 
+@dataclass
+class Structure:
+    """What a solve leaves for a test of the same map: its edges, their fixed pattern and the
+    last factorisation (whose ordering a refactorisation of new values keeps)."""
+
+    edges: NDArray[np.bool_]
+    pattern: UpperPattern
+    factor: Factor
+
+
 def solve(graph: PoseGraph, edges: NDArray[np.bool_], init: F, *, max_iters: int = 50,
-          tol: float = 1e-7, keep: list[object] | None = None) -> tuple[F, dict[str, float]]:
+          tol: float = 1e-7, keep: list[Structure] | None = None
+          ) -> tuple[F, dict[str, float]]:
     """Levenberg–Marquardt on the selected edges from ``init``; returns poses and stats
     (``iterations``, ``cost_initial``, ``cost``; ``converged`` 0 where the iterations ran out
     before the relative decrease of the cost fell under ``tol``, with the last accepted step's
@@ -230,9 +241,8 @@ def solve(graph: PoseGraph, edges: NDArray[np.bool_], init: F, *, max_iters: int
     instead made intel's solves with false loops in the map alternate between a refused and an
     accepted step up to the iteration cap.
 
-    ``keep``, a list, receives the edges, the fixed pattern and the last factorisation, so that
-    a test of the same map refactorises their structure (``Factor.update``) instead of ordering
-    it again."""
+    ``keep``, a list, receives the solve's :class:`Structure`, so that a test of the same map
+    refactorises it (``Factor.update``) instead of ordering it again."""
     sel = np.flatnonzero(edges)
     src, dst, Z = graph.src[sel], graph.dst[sel], graph.Z[sel]
     U = _chol_upper(graph.info[sel])
@@ -276,6 +286,6 @@ def solve(graph: PoseGraph, edges: NDArray[np.bool_], init: F, *, max_iters: int
                 converged = True
                 break
     if keep is not None and fac is not None:
-        keep[:] = [edges.copy(), pattern, fac]
+        keep[:] = [Structure(edges.copy(), pattern, fac)]
     return P, {"iterations": float(it), "cost_initial": first, "cost": cost,
                "converged": float(converged), "last_rel_decrease": rel}

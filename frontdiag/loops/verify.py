@@ -61,7 +61,7 @@ from frontdiag.loops.init import chordal_init
 from frontdiag.loops.solve import (
     Factor,
     Linearised,
-    UpperPattern,
+    Structure,
     _chol_upper,
     linearise,
     normal_equations,
@@ -110,11 +110,11 @@ class MapSystem:
 
 
 def map_system(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
-               solved: list[object] | None = None) -> MapSystem:
+               structure: Structure | None = None) -> MapSystem:
     """Linearise every edge at P and factorise the normal matrix of the map's edges (the work
-    :func:`map_test` and :func:`leave_cluster_out` share). ``solved``: what ``solve(keep=)``
-    kept from the solve of this map, whose pattern and ordering are then reused (the same
-    factor: only the values are computed again)."""
+    :func:`map_test` and :func:`leave_cluster_out` share). ``structure``: what ``solve(keep=)``
+    kept from a solve of this map, whose pattern and ordering are then reused (the same
+    factor: only the values are computed again); ignored for another edge set."""
     g = result.graph
     n, k = g.n_vertices, g.k
     edges = map_edges(result, in_map)
@@ -124,12 +124,10 @@ def map_system(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
     # the map's edges are a subset of every edge: take their linearisation from lin_all
     lin = Linearised(r=lin_all.r.reshape(-1, k)[sel].ravel(), U=U_all[sel],
                      Je_i=lin_all.Je_i[sel], Je_j=lin_all.Je_j[sel], e=lin_all.e[sel])
-    pattern, fac = (solved[1], solved[2]) if solved else (None, None)
-    if solved and isinstance(solved[0], np.ndarray) and np.array_equal(solved[0], edges) \
-            and isinstance(pattern, UpperPattern) and isinstance(fac, Factor):
-        H, _ = normal_equations(lin, g.src[sel], g.dst[sel], n, 0.0, pattern)
-        fac.update(H)  # the solve is over: its factor is ours
-        return MapSystem(lin_all, sel, lin, fac)
+    if structure is not None and np.array_equal(structure.edges, edges):
+        H, _ = normal_equations(lin, g.src[sel], g.dst[sel], n, 0.0, structure.pattern)
+        structure.factor.update(H)  # the solve is over: its factor is ours
+        return MapSystem(lin_all, sel, lin, structure.factor)
     H, _ = normal_equations(lin, g.src[sel], g.dst[sel], n, 0.0)
     return MapSystem(lin_all, sel, lin, Factor(H))
 
@@ -188,7 +186,7 @@ TESTED_KEPT = 2
 
 
 def tested_map(result: LoopAudit, P: F, in_map: NDArray[np.bool_], seed: int,
-               solved: list[object] | None = None) -> tuple[MapSystem, dict[str, F]]:
+               structure: Structure | None = None) -> tuple[MapSystem, dict[str, F]]:
     """:func:`map_system` and :func:`map_test` (with ``seed``) of the map of ``in_map`` at
     ``P``, or those of the same map already tested in this audit: the run screen tests the map
     the last round tested, and the round after a corroboration the map the corroboration
@@ -199,7 +197,7 @@ def tested_map(result: LoopAudit, P: F, in_map: NDArray[np.bool_], seed: int,
     for k, system, res in result.tested_maps:
         if k == key:
             return system, res
-    system = map_system(result, P, in_map, solved)
+    system = map_system(result, P, in_map, structure)
     res = map_test(result, P, in_map, seed=seed, system=system)
     result.tested_maps[:] = [*result.tested_maps, (key, system, res)][-TESTED_KEPT:]
     return system, res
@@ -617,7 +615,7 @@ def verify_against_map(result: LoopAudit) -> None:
             edges = map_edges(result, in_map)
             if r == first and solved is not None and np.array_equal(solved[0], in_map):
                 P_warm, st_warm = solved[1], solved[2]  # the same solve, from the same P
-                factored: list[object] = []
+                factored: list[Structure] = []
             else:
                 factored = []
                 P_warm, st_warm = solve(g, edges, P, tol=1e-6, keep=factored)
@@ -657,7 +655,7 @@ def verify_against_map(result: LoopAudit) -> None:
             last.clear()
             last.update(st)
             # either solve's factor has this map's pattern: the last one kept is reused
-            _, res = tested_map(result, P, in_map, r, factored)
+            _, res = tested_map(result, P, in_map, r, factored[0] if factored else None)
             # a run the run screen took out is judged as a whole: it comes back (its loops then
             # as any other) once the median p of its loops, each tested against this map, which
             # holds none of them, passes; until then none of its loops joins, since its loops
