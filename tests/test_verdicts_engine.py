@@ -729,3 +729,19 @@ def test_evaluate_keeps_input_columns_and_replaces_old_verdicts(ruleset) -> None
     assert list(res.table.columns[: len(t.columns) - 1]) == [c for c in t.columns
                                                              if c != "conditions"]
     assert all(c == [] for c in res.table["conditions"])
+
+
+def test_at_a_low_rate_the_twins_reading_still_reads_and_only_the_rest_is_declined(
+        ruleset) -> None:
+    """At 1 Hz (a hand-held photograph set) FD-REP-001's rejection lines are not read, but its
+    twins reading holds at any interval: a stretch with twins and copies in the view is
+    reported, and the note counts only the rows nothing read (not the reported ones, which a
+    note saying the rule did not read them would contradict)."""
+    board = {"ratio_reject_rate": 0.9, "ratio_ambiguous_rate": 0.6, "in_frame_twin_rate": 0.3}
+    wall = {"ratio_reject_rate": 0.8, "ratio_ambiguous_rate": 0.1}
+    res = evaluate(frames(20, {range(1, 12): board, range(12, 20): wall}, rate_hz=1.0), ruleset)
+    assert conds(res, 6) == ["repetitive_structure"]
+    assert conds(res, 15) == []
+    note = [n for n in res.notes if n.startswith("FD-REP-001")]
+    assert len(note) == 1 and "did not read 8 row(s)" in note[0]
+    assert "0.34 s" in note[0] and "twins reading" in note[0]

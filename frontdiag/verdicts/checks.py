@@ -219,10 +219,19 @@ def _matching_table(df: pd.DataFrame, p: Params) -> np.ndarray:
 
 def _matching_unread(df: pd.DataFrame, p: Params) -> tuple[np.ndarray, str]:
     # a row with no rejection reading (first frame, after a gap) had nothing to decline
-    return _wide_interval(df, p) & ~np.isnan(col(df, "ratio_reject_rate")), (
-        f"matched across more than {p.get('max_interval_s', np.nan):g} s (slower than 3 Hz: "
-        "--stride, a low-rate recording or dropped frames); read repetition at the "
-        "recording's own rate")
+    wide = _wide_interval(df, p) & ~np.isnan(col(df, "ratio_reject_rate"))
+    why = (f"matched across more than {p.get('max_interval_s', np.nan):g} s (slower than 3 Hz: "
+           "--stride, a low-rate recording or dropped frames); read repetition at the "
+           "recording's own rate")
+    if "ambiguous_repetitive" not in p:
+        return wide, why
+    # the twins reading holds at any interval and still reads these rows: only the rejection
+    # lines are declined, which is all a row the twins reading found lacks (it is reported)
+    with np.errstate(invalid="ignore"):
+        twins = col(df, "ratio_ambiguous_rate") >= p["ambiguous_repetitive"]
+    return wide & ~twins, (
+        f"{why}. Its twins reading (ratio_ambiguous_rate >= {p['ambiguous_repetitive']:g}), "
+        "which holds at any interval, read these rows and stayed under its line")
 
 
 def _matching_context(df: pd.DataFrame, p: Params) -> pd.DataFrame:
