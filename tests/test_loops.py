@@ -140,8 +140,8 @@ def test_a_cycle_of_rounds_stops_and_its_loops_are_judged_outside_the_map(
     pair = [3, 4]  # the loops 6 -> 46 and 8 -> 48
     calls: list[bool] = []
 
-    def fake(r, P, m, seed=0, **kw):  # type: ignore[no-untyped-def]
-        res = real(r, P, m, seed=seed, **kw)
+    def fake(r, P, m, **kw):  # type: ignore[no-untyped-def]
+        res = real(r, P, m, **kw)
         both_in = bool(m[pair].all())
         calls.append(both_in)
         res["p"] = res["p"].copy()
@@ -184,12 +184,12 @@ def test_a_loop_leaving_the_map_a_second_time_leaves_it_for_good(
     x, y = 3, 9  # the loops 6 -> 46 and 18 -> 58
     x_in: list[bool] = []
 
-    def fake(r, P, m, seed=0, **kw):  # type: ignore[no-untyped-def]
-        res = real(r, P, m, seed=seed, **kw)
+    def fake(r, P, m, **kw):  # type: ignore[no-untyped-def]
+        res = real(r, P, m, **kw)
         x_in.append(bool(m[x]))
         res["p"] = res["p"].copy()
         res["p"][x] = 1e-9 if m[x] else 0.5
-        if seed >= 2:
+        if len(x_in) >= 2:  # from the second test on
             res["p"][y] = 1e-9
         res["fold_m"] = res["fold_m"].copy()
         res["fold_m"][x] = 0.2
@@ -225,6 +225,37 @@ def test_the_map_test_refactorises_the_solves_structure_to_the_same_factor(
     other = in_map.copy()
     other[np.flatnonzero(in_map)[0]] = False
     assert map_system(res, P, other, kept[0]).fac is not kept[0].factor
+
+
+def test_every_map_test_of_an_audit_reads_one_set_of_draws(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Common random numbers: the map test's noise is drawn once per audit (from DRAWS_SEED)
+    and every test of the audit reads that one set, so a loop's verdict changes between rounds
+    only because the map did; the set is freed when the rounds end, and the same graph gives
+    the same table again."""
+    import frontdiag.loops.verify as V
+
+    real = V.edge_draws
+    seen: list[np.ndarray] = []
+
+    def spy(result):  # type: ignore[no-untyped-def]
+        seen.append(real(result))
+        return seen[-1]
+
+    monkeypatch.setattr(V, "edge_draws", spy)
+    # two laps of a square, five false loops 8 poses off among fifteen true ones: three
+    # rounds and five map tests
+    T = [(i, i + 120, i + 120) for s0 in (0, 30, 90) for i in range(s0, s0 + 10, 2)]
+    F = [(i, i + 128, i + 120) for i in range(60, 70, 2)]
+    g = read_graph(_two_lap_square(tmp_path / "sq.g2o", 30, T + F))
+    res = audit(g)
+    assert res.timings["map_rounds"] >= 2 and len(seen) >= 3
+    assert all(d is seen[0] for d in seen)
+    assert seen[0].shape == (g.n_edges, g.k, V.N_DRAWS)
+    np.testing.assert_array_equal(
+        seen[0], np.random.default_rng(V.DRAWS_SEED).standard_normal(seen[0].shape))
+    assert res.draws is None
+    pd.testing.assert_frame_equal(audit(g).table, res.table)
 
 
 def test_csails_rounds_settle_before_the_cap_and_keep_every_published_loop() -> None:
@@ -415,8 +446,7 @@ def test_a_chain_refusal_is_not_overruled_by_a_map_no_stiffer_than_the_chain(
     refusal stands until the map is clearly stiffer, and the true loop is kept."""
     import frontdiag.loops.verify as V
 
-    real = V.map_test
-    monkeypatch.setattr(V, "map_test", lambda r, P, m, seed=0, **kw: real(r, P, m, seed=seed + offset, **kw))
+    monkeypatch.setattr(V, "DRAWS_SEED", offset)
     gpath = _square_graph(tmp_path / "sq.g2o", [(5, 45, 0.0), (7, 47, 4.0)])
     t = audit(read_graph(gpath)).table.set_index("i")
     assert t.loc[5, "verdict"] == "ok"
@@ -863,8 +893,8 @@ def test_a_refuted_loop_is_kept_only_within_fold_m_in_both_fold_and_residual(
     g = read_graph(path)
     target = 7  # the loop 14 -> 54
 
-    def fake(r, P, m, seed=0, **kw):  # type: ignore[no-untyped-def]
-        res = real(r, P, m, seed=seed, **kw)
+    def fake(r, P, m, **kw):  # type: ignore[no-untyped-def]
+        res = real(r, P, m, **kw)
         for key, v in (("p", 0.0), ("fold_m", fold), ("residual_m", residual)):
             res[key] = res[key].copy()
             res[key][target] = v
@@ -1055,9 +1085,9 @@ def test_the_group_screen_re_solves_only_the_groups_its_linearised_test_suspects
     solved: list[int] = []
     real = V._leave_out
 
-    def leave_out(result, P, in_map, mine, seed):  # type: ignore[no-untyped-def]
+    def leave_out(result, P, in_map, mine):  # type: ignore[no-untyped-def]
         solved.append(min(result.table["i"].to_numpy()[mine]))
-        return real(result, P, in_map, mine, seed)
+        return real(result, P, in_map, mine)
 
     monkeypatch.setattr(V, "_leave_out", leave_out)
     t = audit(g).table
@@ -1087,7 +1117,7 @@ def test_the_screen_tests_again_the_groups_that_passed_beside_a_refuted_one(
                              odometry=np.zeros(29, bool), graph=None)
     asked: list[tuple[int, tuple[int, ...]]] = []
 
-    def leave_out(result, P, out, mine, seed):  # type: ignore[no-untyped-def]
+    def leave_out(result, P, out, mine):  # type: ignore[no-untyped-def]
         gid = int(group[mine][0])
         in_map = tuple(sorted(set(group[out].tolist())))
         asked.append((gid, in_map))
@@ -1133,8 +1163,11 @@ def test_m3500_run_of_false_loops_within_the_chains_sigma_leaves_the_map() -> No
     the chains between them, and joins the true loops' pair-test group; in the map they held
     it to each other and all ten were kept. The run screen takes the run out: six are refused,
     and the four kept are within fold_m of the corrected map, their reason naming the run. No
-    other false loop is kept and every true loop is. (Since the rounds stop at a cycle,
-    2335→2368 is refused in them, before the screen, which takes out the other nine.)"""
+    other false loop is kept and every true loop is. (The rounds can take a loop at either end
+    of the run out of the map before the screen, which then takes out the rest: since the
+    rounds stop at a cycle 2335→2368 is refused in them, and since the map tests share one set
+    of draws 2344→2377 also leaves in them, kept within fold_m, and the screen takes out
+    eight.)"""
     from frontdiag.loops.inject import inject_false_loops
 
     path = Path(__file__).resolve().parents[1] / "benchmarks/data/loops/input_M3500_g2o.g2o"
@@ -1151,10 +1184,13 @@ def test_m3500_run_of_false_loops_within_the_chains_sigma_leaves_the_map() -> No
     assert not t.loc[run, "in_map"].any()
     assert (kept & run).sum() <= 4
     assert (t.loc[kept & run, "map_residual_m"] <= 0.5).all()
-    named = t.loc[run, "reason"].str.contains(
-        r"its run of (?:10 loops \(2335|9 loops \(2336)-2344 → 23(?:68|69)-2377\) was taken out")
-    assert named.sum() >= 9
-    assert (named | (t.loc[run, "verdict"] == "fail")).all()
+    named = t.loc[run, "reason"].str.extract(
+        r"its run of (\d+) loops \((\d+)-(\d+) → (\d+)-(\d+)\) was taken out")
+    screened = named[0].notna()
+    assert screened.sum() >= 8  # the screen took the run out, all but its ends at least
+    assert (named.loc[screened, 0].astype(int) >= 8).all()
+    assert (named.loc[screened, 1].astype(int) <= 2336).all()
+    assert (named.loc[screened, 2].astype(int) >= 2343).all()
 
 
 @pytest.mark.parametrize("first_map_capped", [False, True])

@@ -34,7 +34,8 @@ exactly, so K draws (one factorisation, K back-substitutions) give, for every lo
   tiny residual *and* a tiny residual covariance, so the fold does not hide it;
 * a loop not in the map: ``U⁻¹n'_l + J_l δx`` with covariance ``Σ_L + J_l H⁻¹ J_lᵀ``.
 
-With the sample covariance Ŝ of K draws (mean known to be zero), ``T² = eᵀŜ⁻¹e`` gives
+The draws are made once per audit and shared by all its tests (:func:`edge_draws`). With the
+sample covariance Ŝ of K draws (mean known to be zero), ``T² = eᵀŜ⁻¹e`` gives
 ``T²(K − k + 1)/(K k) ~ F(k, K − k + 1)`` (Hotelling). The files' covariances are often off by a
 scale (published graphs store √Ω, or invented weights); the variance factor ``σ0²``, the median
 T² of the loops in the map over the median of χ²_k, rescales them (a robust a-posteriori
@@ -109,6 +110,24 @@ class MapSystem:
     fac: Factor
 
 
+DRAWS_SEED = 0
+"""Seed of the map test's draws: fixed, so that an audit gives the same table every run."""
+
+
+def edge_draws(result: LoopAudit) -> F:
+    """Whitened measurement noise ``n ~ N(0, I)`` for every edge, N_DRAWS draws a row, drawn
+    once per audit and read by every map test of it (common random numbers): a loop's verdict
+    changes between rounds only because the map did, not because its sampled covariance was
+    drawn again. With fresh draws each round, loops near a line went in and out on the draws
+    alone (intel's rounds ran to the cap on every benchmark configuration: 273 rounds over 30
+    runs, 173 with one set; docs/loops.md). Freed with the tested maps when the rounds end."""
+    g = result.graph
+    if result.draws is None:
+        result.draws = np.random.default_rng(DRAWS_SEED).standard_normal(
+            (g.n_edges, g.k, N_DRAWS))
+    return result.draws
+
+
 def map_system(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
                structure: Structure | None = None) -> MapSystem:
     """Linearise every edge at P and factorise the normal matrix of the map's edges (the work
@@ -132,18 +151,18 @@ def map_system(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
     return MapSystem(lin_all, sel, lin, Factor(H))
 
 
-def map_test(result: LoopAudit, P: F, in_map: NDArray[np.bool_], seed: int = 0,
+def map_test(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
              system: MapSystem | None = None) -> dict[str, F]:
-    """Residual of every loop against poses P, and its T² / p-value (see the module doc);
-    ``system`` is :func:`map_system` of the same P and map, if already built."""
+    """Residual of every loop against poses P, and its T² / p-value (see the module doc), from
+    the audit's draws (:func:`edge_draws`); ``system`` is :func:`map_system` of the same P and
+    map, if already built."""
     g = result.graph
     loops = result.table["edge"].to_numpy()
     n, k = g.n_vertices, g.k
     sys_ = system or map_system(result, P, in_map)
     lin_all, sel, lin, fac = sys_.lin_all, sys_.sel, sys_.lin, sys_.fac
     U_all, e_all = lin_all.U, lin_all.e
-    rng = np.random.default_rng(seed)
-    noise = rng.standard_normal((g.n_edges, k, N_DRAWS))
+    noise = edge_draws(result)
     # Aᵀ n for the map's edges
     Wi, Wj = lin.U @ lin.Je_i, lin.U @ lin.Je_j
     ns = noise[sel]
@@ -185,20 +204,20 @@ TESTED_KEPT = 2
 """How many tested maps an audit keeps for :func:`tested_map`."""
 
 
-def tested_map(result: LoopAudit, P: F, in_map: NDArray[np.bool_], seed: int,
+def tested_map(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
                structure: Structure | None = None) -> tuple[MapSystem, dict[str, F]]:
-    """:func:`map_system` and :func:`map_test` (with ``seed``) of the map of ``in_map`` at
-    ``P``, or those of the same map already tested in this audit: the run screen tests the map
-    the last round tested, and the round after a corroboration the map the corroboration
-    tested; a second test would only redraw (M3500 with 10 % local false loops: 2 of 9 map
-    tests; the audit 1.13x faster, median of 30 M3500 runs)."""
+    """:func:`map_system` and :func:`map_test` of the map of ``in_map`` at ``P``, or those of
+    the same map already tested in this audit: the run screen tests the map the last round
+    tested, and the round after a corroboration the map the corroboration tested; a second
+    test would give the same result (M3500 with 10 % local false loops: 2 of 9 map tests; the
+    audit 1.13x faster, median of 30 M3500 runs)."""
     key = (hashlib.blake2b(np.ascontiguousarray(P).tobytes(), digest_size=16).digest(),
            in_map.tobytes())
     for k, system, res in result.tested_maps:
         if k == key:
             return system, res
     system = map_system(result, P, in_map, structure)
-    res = map_test(result, P, in_map, seed=seed, system=system)
+    res = map_test(result, P, in_map, system=system)
     result.tested_maps[:] = [*result.tested_maps, (key, system, res)][-TESTED_KEPT:]
     return system, res
 
@@ -243,7 +262,6 @@ def _corroborate(result: LoopAudit, P: F, in_map: NDArray[np.bool_], res: dict[s
     that of the map holding every candidate (:func:`map_test`).
     """
     t = result.table
-    loops = t["edge"].to_numpy()
     cand = ~in_map & (res["p"] >= p_alarm) & ~(res["map_sigma_m"] <= power_m) & ~barred \
         & (t["verdict"] != "fail").to_numpy()
     idx = np.flatnonzero(cand)
@@ -261,7 +279,7 @@ def _corroborate(result: LoopAudit, P: F, in_map: NDArray[np.bool_], res: dict[s
     P_all, st_all = solve(g, map_edges(result, held), P, tol=1e-6)
     members = [idx[label == c] for c in clusters.tolist()]
     for mine, (p, _T2, sigma) in zip(
-            members, tested_without(result, P_all, held, members, seed=int(loops[idx[0]])),
+            members, tested_without(result, P_all, held, members),
             strict=True):
         out[mine[(p >= p_alarm) & (sigma <= power_m)]] = True
     return out, (held, P_all, st_all)
@@ -318,15 +336,15 @@ def leave_cluster_out(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
 
 
 def tested_without(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
-                   clusters: list[NDArray[np.intp]], seed: int, own_factor: bool = False
+                   clusters: list[NDArray[np.intp]], own_factor: bool = False
                    ) -> list[tuple[F, F, F]]:
     """Per cluster (table rows of loops in the map of ``in_map`` at ``P``): every one of its
     loops' p, T² and map σ (m) against the map without the cluster (:func:`leave_cluster_out`),
-    after the variance factor of the map (:func:`map_test` with ``seed``) or, with
+    after the variance factor of the map (:func:`map_test`) or, with
     ``own_factor``, of the map's loops outside the cluster (a cluster in the map inflates the
     factor of the map that holds it)."""
     g = result.graph
-    system, m = tested_map(result, P, in_map, seed)
+    system, m = tested_map(result, P, in_map)
     s0_map = float(m["sigma0_sq"][0])
     raw = m["T2"] * s0_map
     median_chi2 = float(chi2_dist.ppf(0.5, g.k))
@@ -343,14 +361,14 @@ def tested_without(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
     return out
 
 
-def _leave_out(result: LoopAudit, P: F, in_map: NDArray[np.bool_], mine: NDArray[np.bool_],
-               seed: int) -> tuple[float, float]:
+def _leave_out(result: LoopAudit, P: F, in_map: NDArray[np.bool_], mine: NDArray[np.bool_]
+               ) -> tuple[float, float]:
     """Median p and T² of the loops ``mine`` against the map of ``in_map`` without them,
     solved from ``P``."""
     rest = in_map & ~mine
     edges = map_edges(result, rest)
     Pg, _ = solve(result.graph, edges, P, tol=1e-6)
-    res = map_test(result, Pg, rest, seed=seed)
+    res = map_test(result, Pg, rest)
     return float(np.median(res["p"][mine])), float(np.median(res["T2"][mine]))
 
 
@@ -367,7 +385,7 @@ def _group_suspects(result: LoopAudit, P: F, in_map: NDArray[np.bool_], group: N
     if not ids:
         return []
     members = [np.flatnonzero(in_map & (group == gid)) for gid in ids]
-    tests = tested_without(result, P, in_map, members, seed=0, own_factor=True)
+    tests = tested_without(result, P, in_map, members, own_factor=True)
     return [gid for gid, (p, _T2, _s) in zip(ids, tests, strict=True) if np.median(p) < PRE_P]
 
 
@@ -408,7 +426,7 @@ def _screen_groups(result: LoopAudit, P: F, in_map: NDArray[np.bool_], p_alarm: 
         """The groups among ``ids`` that the map of ``out`` without them refutes."""
         found = {}
         for gid in _group_suspects(result, P, out, group, ids):
-            p, T2 = _leave_out(result, P, out, out & (group == gid), seed=gid + 1)
+            p, T2 = _leave_out(result, P, out, out & (group == gid))
             if p < p_alarm:
                 found[gid] = (p, -T2)
         return found
@@ -514,7 +532,7 @@ def _screen_runs(result: LoopAudit, P: F, in_map: NDArray[np.bool_], p_alarm: fl
         found: dict[int, tuple[float, float]] = {}
         if not ids:
             return found
-        tests = tested_without(result, P, out, [left[i] for i in ids], seed=len(gone) + 1)
+        tests = tested_without(result, P, out, [left[i] for i in ids])
         for i, (p, T2, _s) in zip(ids, tests, strict=True):
             if np.median(p) < p_alarm:
                 found[i] = (float(np.median(p)), -float(np.median(T2)))
@@ -655,7 +673,7 @@ def verify_against_map(result: LoopAudit) -> None:
             last.clear()
             last.update(st)
             # either solve's factor has this map's pattern: the last one kept is reused
-            _, res = tested_map(result, P, in_map, r, factored[0] if factored else None)
+            _, res = tested_map(result, P, in_map, factored[0] if factored else None)
             # a run the run screen took out is judged as a whole: it comes back (its loops then
             # as any other) once the median p of its loops, each tested against this map, which
             # holds none of them, passes; until then none of its loops joins, since its loops
@@ -714,6 +732,7 @@ def verify_against_map(result: LoopAudit) -> None:
             in_map, P, res, rounds = run_rounds(kept, P_runs, rounds + 1)
     result.map_poses = P
     result.tested_maps.clear()  # their factorisations and draws are not needed past here
+    result.draws = None
     if last and not last.get("converged", 1.0):
         result.notes.append(
             f"the last map's solve stopped at its {int(last['iterations'])}-iteration cap before "
