@@ -236,7 +236,7 @@ def test_every_map_test_of_an_audit_reads_one_set_of_draws(
     import frontdiag.loops.verify as V
 
     real = V.edge_draws
-    seen: list[np.ndarray] = []
+    seen: list[V.Draws] = []
 
     def spy(result):  # type: ignore[no-untyped-def]
         seen.append(real(result))
@@ -251,9 +251,9 @@ def test_every_map_test_of_an_audit_reads_one_set_of_draws(
     res = audit(g)
     assert res.timings["map_rounds"] >= 2 and len(seen) >= 3
     assert all(d is seen[0] for d in seen)
-    assert seen[0].shape == (g.n_edges, g.k, V.N_DRAWS)
+    assert seen[0].edge.shape == (g.n_edges, g.k, V.N_DRAWS)
     np.testing.assert_array_equal(
-        seen[0], np.random.default_rng(V.DRAWS_SEED).standard_normal(seen[0].shape))
+        seen[0].edge, np.random.default_rng(V.DRAWS_SEED).standard_normal(seen[0].edge.shape))
     assert res.draws is None
     pd.testing.assert_frame_equal(audit(g).table, res.table)
 

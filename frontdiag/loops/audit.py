@@ -67,7 +67,7 @@ class LoopAudit:
     tested_maps: list[tuple[Any, Any, Any]] = field(default_factory=list, repr=False,
                                                      compare=False)
     """The map test's last maps (``verify.tested_map``), reused within this audit only."""
-    draws: np.ndarray | None = field(default=None, repr=False, compare=False)
+    draws: Any = field(default=None, repr=False, compare=False)
     """The map test's noise draws (``verify.edge_draws``), shared by this audit's tests only."""
 
     def kept_edges(self) -> np.ndarray:

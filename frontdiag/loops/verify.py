@@ -114,17 +114,30 @@ DRAWS_SEED = 0
 """Seed of the map test's draws: fixed, so that an audit gives the same table every run."""
 
 
-def edge_draws(result: LoopAudit) -> F:
+@dataclass
+class Draws:
+    """The map test's draws for one audit: whitened noise for every edge (``edge``, edges x k x
+    N_DRAWS) and each loop's own residual noise from it (``own``, U_l⁻¹ n_l, loops x k x
+    N_DRAWS; U_l the Cholesky factor of the loop's information, as every test whitens with)."""
+
+    edge: F
+    own: F
+
+
+def edge_draws(result: LoopAudit) -> Draws:
     """Whitened measurement noise ``n ~ N(0, I)`` for every edge, N_DRAWS draws a row, drawn
     once per audit and read by every map test of it (common random numbers): a loop's verdict
     changes between rounds only because the map did, not because its sampled covariance was
     drawn again. With fresh draws each round, loops near a line went in and out on the draws
     alone (intel's rounds ran to the cap on every benchmark configuration: 273 rounds over 30
-    runs, 173 with one set; docs/loops.md). Freed with the tested maps when the rounds end."""
-    g = result.graph
+    runs, 173 with one set; docs/loops.md). The loops' own term, the same in every test, is
+    computed with them. Freed with the tested maps when the rounds end."""
     if result.draws is None:
-        result.draws = np.random.default_rng(DRAWS_SEED).standard_normal(
-            (g.n_edges, g.k, N_DRAWS))
+        g = result.graph
+        edge = np.random.default_rng(DRAWS_SEED).standard_normal((g.n_edges, g.k, N_DRAWS))
+        loops = result.table["edge"].to_numpy()
+        own = np.linalg.inv(_chol_upper(g.info[loops])) @ edge[loops]
+        result.draws = Draws(edge, own)
     return result.draws
 
 
@@ -161,8 +174,9 @@ def map_test(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
     n, k = g.n_vertices, g.k
     sys_ = system or map_system(result, P, in_map)
     lin_all, sel, lin, fac = sys_.lin_all, sys_.sel, sys_.lin, sys_.fac
-    U_all, e_all = lin_all.U, lin_all.e
-    noise = edge_draws(result)
+    e_all = lin_all.e
+    drawn = edge_draws(result)
+    noise = drawn.edge
     # Aᵀ n for the map's edges
     Wi, Wj = lin.U @ lin.Je_i, lin.U @ lin.Je_j
     ns = noise[sel]
@@ -172,7 +186,7 @@ def map_test(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
     a, bb = g.src[loops], g.dst[loops]
     Ji, Jj = lin_all.Je_i[loops], lin_all.Je_j[loops]
     d_rel = Jj @ dx[bb] + Ji @ dx[a]
-    own = np.linalg.inv(U_all[loops]) @ noise[loops]
+    own = drawn.own
     draws = own + d_rel
     S = np.einsum("mis,mjs->mij", draws, draws) / N_DRAWS
     e = e_all[loops]
