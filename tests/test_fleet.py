@@ -332,3 +332,28 @@ def test_info_on_a_folder_lists_one_line_per_recording(
     assert [Path(r["path"]).name for r in doc["recordings"]] == ["r0.mcap", "r1.mcap", "r2.mcap"]
     assert [Path(e["path"]).name for e in doc["errors"]] == ["bad.mcap"]
     assert doc["recordings"][0]["analyze_would_use"]["camera"] == "/cam/image_raw"
+
+
+def test_the_console_summary_says_how_many_were_skipped_and_only_when_some_were(
+        tmp_path: Path) -> None:
+    """The line under the fleet table counts the recordings skipped because their result was
+    current and names the flag that analyses them again; a run that skipped none says nothing
+    about skipping."""
+    from rich.console import Console
+
+    from frontdiag.cli.fleet_ import render_summary
+
+    def row(name: str, status: str) -> dict[str, object]:
+        return {"recording": name, "status": status, "frames": 12, "coverage": 1.0, "ok": 12,
+                "warn": 0, "fail": 0, "no_pose": 0, "episodes": 0, "gate": "passed",
+                "seconds": 0.5}
+
+    def text(rows: list[dict[str, object]]) -> str:
+        con = Console(record=True, width=200)
+        render_summary(con, rows, tmp_path / "fleet_summary.parquet")
+        return con.export_text()
+
+    fresh = text([row("r0", "ok"), row("r1", "ok")])
+    assert "skipped" not in fresh and "fleet_summary.parquet" in fresh
+    again = text([row("r0", "skipped"), row("r1", "ok"), row("r2", "skipped")])
+    assert "2 skipped: their results were current" in again and "--force" in again

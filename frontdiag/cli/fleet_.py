@@ -121,5 +121,8 @@ def render_summary(con: Any, rows: list[dict[str, Any]], path: Path) -> None:
     errors = [r for r in rows if r["status"] == "error"]
     for r in errors:
         con.print(f"[red]error[/] {escape(str(r['error']))}")
-    con.print(f"summary: {escape(str(path))} (one result folder per recording beside it; "
-              "skipped: its result was current)")
+    n_skipped = sum(r["status"] == "skipped" for r in rows)
+    skipped = (f"; {n_skipped} skipped: their results were current, the same recording and rules "
+               "(--force analyses them again)") if n_skipped else ""
+    con.print(f"summary: {escape(str(path))} (one result folder per recording beside it"
+              f"{skipped})")
