@@ -544,7 +544,12 @@ def test_explain_on_a_graph_without_loops_says_so(tmp_path: Path, capsys) -> Non
     assert main(["loops", str(tmp_path / "odo.g2o"), "--explain", "0"]) == 2
     assert "has no loop closures to explain" in capsys.readouterr().err
     assert main(["loops", str(tmp_path / "odo.g2o")]) == 0
-    assert "0 loops; 0 pairs tested, 0 conflicts" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert "0 loops; 0 pairs tested, 0 conflicts" in out
+    # and says why nothing was audited, and which option changes what counts as odometry
+    assert "no loop closures: all 2 edges join vertices at most 1 apart" in out
+    assert "--odom-max-gap" in out
+    assert any(n.startswith("no loop closures") for n in audit(read_graph(tmp_path / "odo.g2o")).notes)
 
 
 def test_a_loop_left_out_when_the_rounds_stop_is_not_called_too_loose_to_test(

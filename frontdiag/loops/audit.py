@@ -145,6 +145,9 @@ def _audit(graph: PoseGraph, rules: LoopRules | None, *, odom_max_gap: int, veri
                          hint="the audit needs the odometry edges: a graph of loops alone "
                               "cannot be tested")
     loops = np.flatnonzero(~odo)
+    no_loops = (f"no loop closures: all {graph.n_edges} edges join vertices at most "
+                f"{odom_max_gap} apart in id order, so they are odometry and nothing was audited "
+                "(--odom-max-gap sets that span)") if graph.n_edges and not loops.size else None
     r2 = rules.by_statistic("pcm")
     r5 = rules.optional("stiffness")
     over = find_overconfident(graph, float(r5.param("max_over_median"))) if r5 else None
@@ -243,6 +246,8 @@ def _audit(graph: PoseGraph, rules: LoopRules | None, *, odom_max_gap: int, veri
     note = _calibration_note(result.table, k)
     if note:
         result.notes.append(note)
+    if no_loops:
+        result.notes.append(no_loops)
     timings["total_s"] = time.perf_counter() - t0
     return result
 
