@@ -154,7 +154,8 @@ def test_a_residual_far_above_the_scene_is_the_exposure_signature(ruleset) -> No
     exp = hits(res, "exposure_step")
     assert exp[100] and exp.sum() == 1
     lines = next(e for e in explain_row(res, 100) if e.rule.id == "FD-EXP-001").check_lines
-    assert any("relative (decides)" in ln and "exposure signature" in ln for ln in lines)
+    assert any("relative (decides the residual reading)" in ln and "exposure signature" in ln
+               for ln in lines)
 
 
 def test_a_residual_at_the_scene_level_is_not_a_step(ruleset) -> None:
@@ -226,6 +227,13 @@ def test_a_brightness_ratio_step_between_photographs_is_an_exposure_step(ruleset
     assert exp.tolist() == [False, False, True, True, False, False]
     lines = next(e for e in explain_row(res, 4) if e.rule.id == "FD-EXP-001").check_lines
     assert any("not trusted" in ln for ln in lines)
+    assert any(ln.endswith("not an exposure step") for ln in lines)
+    # where the ratio calls the step, the residual reading's look-alikes (matching collapsed at
+    # 80 % rejection) say why that reading alone would not, not that there is no step
+    lines = next(e for e in explain_row(res, 2) if e.rule.id == "FD-EXP-001").check_lines
+    assert any("the brightness ratio above decides" in ln for ln in lines)
+    assert not any("not an exposure step" in ln or "not an auto-exposure step" in ln
+                   for ln in lines)
 
 
 def test_the_brightness_ratio_carries_the_standard_error_of_its_median() -> None:

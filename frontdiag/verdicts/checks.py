@@ -492,13 +492,15 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                        f"steps within {p['baseline_window_s']:g} s): the absolute line decides")
         elif not np.isnan(res):
             far = res >= p["residual_jump"] * base and res - base > p["baseline_sigmas"] * sig
-            out.append(f"relative (decides): the scene's own residual {base:.3g} (robust sigma "
+            out.append(f"relative (decides the residual reading): the scene's own residual "
+                       f"{base:.3g} (robust sigma "
                        f"{sig:.2g}, rows within {p['baseline_window_s']:g} s outside steps); "
                        f"{res:.3g} is {res / base if base > 0 else float('inf'):.2g}x it: "
                        + ("far above, the exposure signature" if far else
                           f"not x{p['residual_jump']:g} and {p['baseline_sigmas']:g} sigma "
                           "above it"))
     ratio, w = _v(row, "brightness_ratio"), _v(row, "inlier_ratio")
+    trusted = clears = False
     if "ratio_step" in p and not np.isnan(ratio):
         line = p["ratio_step"]
         beyond = ratio >= line or ratio <= 1 / line
@@ -517,7 +519,13 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                       f", but the patches scatter: the median is uncertain to "
                       f"{se * 100:.1f}% (standard error) and must clear the line by {k:g} of "
                       "those, so the surfaces may not have changed at all"))
-    if _v(row, "dark_step") == 1.0:
+    by_ratio = "ratio_step" in p and not np.isnan(ratio) and trusted and clears
+    by_dark = _v(row, "dark_step") == 1.0
+    # where the brightness ratio or the step into darkness calls it a step, the residual
+    # reading's look-alikes below only say why that reading alone would not
+    decides = ("; the brightness ratio above decides" if by_ratio else
+               "; the step into darkness above decides" if by_dark else "")
+    if by_dark:
         out.append(f"|d_mean_intensity| {abs(dm):.1f} > {p['dmean_dark']:g}, into or out of a "
                    "view where detection fails: a step into darkness or back, whatever "
                    "matching does after it")
@@ -540,13 +548,16 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
         else:
             out.append(f"ratio_reject_rate {rej:.0%} >= {p['reject_max']:.0%} and the affine "
                        "model does not remove the residual: matching collapsed (a gain step "
-                       "rejects ~55%); a scene cut or repetition, not an exposure step")
+                       "rejects ~55%); " + ("the residual reading alone takes it for a scene "
+                                            f"cut or repetition{decides}" if decides else
+                                            "a scene cut or repetition, not an exposure step"))
     if rec > 0:
         out.append(f"recovered {rec:.0f} frame(s) later (a step recovers within "
                    f"{p['recovery_frames']:g})")
     elif rec == 0:
         out.append(f"still disturbed {p['recovery_frames']:g} frames later: a ramp (lights "
-                   "fading, flicker), not an auto-exposure step")
+                   "fading, flicker), " + (f"to the residual reading alone{decides}" if decides
+                                           else "not an auto-exposure step"))
     if np.isnan(prev):
         out.append("no residual on the frame before: the motion-blur look-alike cannot be "
                    "ruled out by onset")
@@ -556,7 +567,8 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     else:
         out.append(f"residual {prev:.1f} on the frame before: no one-frame jump (x"
                    f"{p['residual_jump']:g}), which reads as gradual degradation (motion blur: "
-                   "check gyro rate), not an exposure step")
+                   "check gyro rate)" + (f" to the residual reading alone{decides}" if decides
+                                         else ", not an exposure step"))
     return out
 
 
