@@ -555,9 +555,10 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
         out.append(f"recovered {rec:.0f} frame(s) later (a step recovers within "
                    f"{p['recovery_frames']:g})")
     elif rec == 0:
-        out.append(f"still disturbed {p['recovery_frames']:g} frames later: a ramp (lights "
-                   "fading, flicker), " + (f"to the residual reading alone{decides}" if decides
-                                           else "not an auto-exposure step"))
+        out.append(f"still disturbed {p['recovery_frames']:g} frames later: "
+                   + (f"the residual reading alone sees a ramp (lights fading, flicker), not a "
+                      f"step{decides}" if decides else
+                      "a ramp (lights fading, flicker), not an auto-exposure step"))
     if np.isnan(prev):
         out.append("no residual on the frame before: the motion-blur look-alike cannot be "
                    "ruled out by onset")
@@ -566,9 +567,11 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                    "blur degrades over several frames, a step is one frame wide")
     else:
         out.append(f"residual {prev:.1f} on the frame before: no one-frame jump (x"
-                   f"{p['residual_jump']:g}), which reads as gradual degradation (motion blur: "
-                   "check gyro rate)" + (f" to the residual reading alone{decides}" if decides
-                                         else ", not an exposure step"))
+                   f"{p['residual_jump']:g}), "
+                   + (f"so the residual reading alone sees gradual degradation (motion blur: "
+                      f"check gyro rate){decides}" if decides else
+                      "which reads as gradual degradation (motion blur: check gyro rate), not "
+                      "an exposure step"))
     return out
 
 
