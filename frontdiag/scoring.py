@@ -349,6 +349,38 @@ def pool(reports: Iterable[EvalReport]) -> EvalReport:
                       unknown_predicted=sorted(unknown))
 
 
+def format_markdown(report: EvalReport) -> str:
+    """A (pooled) report as a Markdown table, one row per condition with labelled episodes:
+    episodes found, episode recall with its 95 % interval, frame precision and false alarms on
+    healthy frames, then the overall false-alarm rate with its interval; conditions flagged
+    but never labelled are named under the table (their precision is 0 by construction)."""
+    def num(v: float | None) -> str:
+        return "-" if v is None else f"{v:.2f}"
+
+    lines = ["| condition | episodes found | episode recall (95 % interval) | frame precision "
+             "| false alarms |", "|---|---|---|---|---|"]
+    unlabelled = []
+    for c in report.conditions:
+        if not c.episodes:
+            if c.frames_flagged:
+                unlabelled.append(f"{c.condition} ({c.frames_flagged} frames)")
+            continue
+        ci = format_interval(c.episode_recall_ci95, dash="–")
+        lines.append(f"| {c.condition} | {c.episodes_found}/{c.episodes} | "
+                     f"{num(c.episode_recall)} ({ci}) | {num(c.precision)} | "
+                     f"{c.false_alarms}/{c.healthy_frames} |")
+    rate = report.false_alarm_rate
+    share = "-" if rate is None else f"{100 * rate:.1f} %"
+    ci = format_interval(report.false_alarm_rate_ci95, pct=True, dash="–").removesuffix(" %")
+    lines.append(f"| all conditions, healthy frames | | | | {report.false_alarms}/"
+                 f"{report.healthy_frames} ({share}; {ci} %) |")
+    if unlabelled:
+        lines.append("")
+        lines.append("Flagged but never labelled in these recordings: " + ", ".join(unlabelled)
+                     + ".")
+    return "\n".join(lines)
+
+
 def format_pooled(report: EvalReport) -> str:
     """Plain-text table of a (pooled) report: episodes found with the 95 % interval of episode
     recall, frame precision / recall / F1, false alarms on healthy frames per condition, then

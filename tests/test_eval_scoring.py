@@ -11,6 +11,7 @@ import pytest
 from frontdiag.cli import main
 from frontdiag.errors import ConfigError
 from frontdiag.scoring import (
+    format_markdown,
     format_pooled,
     read_frames,
     read_labels,
@@ -169,6 +170,23 @@ def test_recall_and_false_alarms_carry_their_interval() -> None:
     text = format_pooled(rep)
     assert "3/4" in text and "0.30-0.95" in text
     assert "(95% CI 1.4-16.5 %)" in text
+
+
+def test_the_markdown_table_is_the_readmes() -> None:
+    """The same report as Markdown: a row per labelled condition (found, recall with its
+    interval, precision, false alarms), the overall rate with its interval, and the conditions
+    flagged without a label named under the table, not given a row of zeros."""
+    labels = _labels([(0, 39, "healthy"), (40, 40, "pure_rotation"), (42, 42, "pure_rotation"),
+                      (44, 44, "pure_rotation"), (46, 46, "pure_rotation")])
+    conds = [""] * 40
+    conds[10] = conds[20] = "exposure_step"
+    conds += ["pure_rotation", "", "pure_rotation", "", "pure_rotation", "", "", ""]
+    lines = format_markdown(score(_frames(conds), labels)).splitlines()
+    assert lines[0].startswith("| condition | episodes found | episode recall (95 % interval)")
+    assert "| pure_rotation | 3/4 | 0.75 (0.30–0.95) | 1.00 | 0/40 |" in lines
+    assert lines[-3] == "| all conditions, healthy frames | | | | 2/40 (5.0 %; 1.4–16.5 %) |"
+    assert lines[-1] == "Flagged but never labelled in these recordings: exposure_step (2 frames)."
+    assert not any(ln.startswith("| exposure_step") for ln in lines)
 
 
 def test_cli_eval_json_and_table(tmp_path: Path, capsys) -> None:

@@ -3,6 +3,7 @@
     python validation/score.py                      # the dev half, in /work/valdata/dev
     python validation/score.py --split report       # the reported half (never tune on it)
     python validation/score.py --split all --json   # both halves, machine-readable
+    python validation/score.py --split report --markdown   # the README's table
     python validation/score.py --data DIR --per-recording
     python validation/score.py --overrides try.toml   # a threshold change, tried on dev
     python validation/score.py --video 23           # every camera re-encoded as H.264 video
@@ -35,6 +36,7 @@ from frontdiag.conditions import CONDITIONS  # noqa: E402
 from frontdiag.errors import ConfigError  # noqa: E402
 from frontdiag.scoring import (  # noqa: E402
     EvalReport,
+    format_markdown,
     format_pooled,
     normalise_frames,
     pool,
@@ -186,6 +188,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--per-recording", action="store_true",
                     help="also print each recording's own table")
     ap.add_argument("--json", action="store_true", help="print JSON instead of tables")
+    ap.add_argument("--markdown", action="store_true",
+                    help="print the pooled table as Markdown, as the README shows it")
     ap.add_argument("--overrides", type=Path, default=None,
                     help="a rule-overrides TOML (as for frontdiag analyze --overrides), to try "
                          "a threshold on the dev half")
@@ -233,7 +237,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     if a.stride > 1:
         video += f", every {a.stride}th frame"
     print(f"== {a.split}: {len(recs)} recordings, {pooled.frames} frames{video}")
-    print(format_pooled(_labelled_only(pooled)))
+    print(format_markdown(pooled) if a.markdown else format_pooled(_labelled_only(pooled)))
     return 0
 
 
