@@ -208,6 +208,19 @@ def test_cli_eval_json_and_table(tmp_path: Path, capsys) -> None:
     text = capsys.readouterr().out
     assert "pure_rotation" in text and "0.21–1.00" in text and "0.0–65.8 %" in text
     assert main(["eval", str(tmp_path / "missing"), "--labels", str(lab)]) == 2
+    # --markdown: the table alone on stdout; a failed gate's reasons on stderr, exit 1
+    assert main(["eval", str(res), "--labels", str(lab), "--markdown"]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out[2] == "| pure_rotation | 1/1 | 1.00 (0.21–1.00) | 1.00 | 0/2 |"
+    missed = tmp_path / "missed.csv"
+    missed.write_text("t_start_ns,t_end_ns,condition\n0,1,pure_rotation\n2,3,pure_rotation\n")
+    assert main(["eval", str(res), "--labels", str(missed), "--markdown",
+                 "--min-recall", "1"]) == 1
+    io = capsys.readouterr()
+    assert "| pure_rotation | 1/2 |" in io.out and "accuracy gate" not in io.out
+    assert io.err.startswith("accuracy gate failed: pure_rotation")
+    assert main(["eval", str(res), "--labels", str(lab), "--markdown", "--json"]) == 2
+    assert "choose one" in capsys.readouterr().err
 
 
 def test_eval_of_a_recording_runs_the_analysis(tmp_path: Path, capsys) -> None:

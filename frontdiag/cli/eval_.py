@@ -155,6 +155,9 @@ def register(app: typer.Typer) -> None:
                                               "frames are flagged."),
         json_: bool = typer.Option(False, "--json", help="Machine-readable output on stdout "
                                    "(schema docs/schemas/eval.json)."),
+        markdown: bool = typer.Option(False, "--markdown", help="The table as Markdown on "
+                                      "stdout (a pull-request comment, a README); a failed "
+                                      "accuracy gate's reasons go to stderr."),
         quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress bar."),
     ) -> int:
         """Score verdicts against labels: episode recall, frame precision/F1, false alarms.
@@ -166,11 +169,15 @@ def register(app: typer.Typer) -> None:
           frontdiag eval run.mcap --min-recall 1 --max-false-alarm 0.01   # CI accuracy gate
 
           frontdiag eval fleet/     # a fleet's --out: every recording with labels, pooled
+
+          frontdiag eval results/ --markdown > scores.md   # a table to paste
         """
         import pandas as pd
 
         from frontdiag.scoring import normalise_frames, read_frames, read_labels, score
 
+        if json_ and markdown:
+            raise ConfigError("--json and --markdown both ask for stdout: choose one")
         for value, name in ((min_recall, "--min-recall"), (min_precision, "--min-precision"),
                             (max_false_alarm, "--max-false-alarm")):
             if value is not None:
@@ -216,6 +223,13 @@ def register(app: typer.Typer) -> None:
                 doc["recordings"] = [{"recording": n, **r.as_dict()} for n, r in per_recording]
                 doc["not_scored"] = left
             typer.echo(emit(EvalDoc, doc))
+            return code
+        if markdown:
+            from frontdiag.scoring import format_markdown
+
+            typer.echo(format_markdown(report))
+            for r in reasons:
+                typer.echo(f"accuracy gate failed: {r}", err=True)
             return code
         from rich import box
         from rich.markup import escape
