@@ -21,12 +21,12 @@ def orin():
     return load_target("orin-nano")
 
 
-def test_published_stage_table(orin) -> None:
+def test_reference_stage_table(orin) -> None:
     cam = budget(Workload(), orin).camera
-    published = {"pyramid": 2.0, "fast": 8.6, "describe": 1.8, "match": 2.6, "pnp": 0.9}
-    for key, ms in published.items():
+    reference = {"pyramid": 2.0, "fast": 8.6, "describe": 1.8, "match": 2.6, "pnp": 0.9}
+    for key, ms in reference.items():
         assert cam.stage(key).ms == pytest.approx(ms, abs=0.05), key
-    # the published model, not the published rounded 2.2 ms
+    # the reference cost model, not the reference table's rounded 2.2 ms
     assert cam.stage("ransac").ms == pytest.approx(2.6, abs=0.05)
     assert cam.period_ms == pytest.approx(33.33, abs=0.01)
     assert 17.5 < cam.total_ms < 19.0
@@ -47,7 +47,7 @@ def test_report_derives_and_footnotes(orin) -> None:
 
 
 @pytest.mark.parametrize(("icp", "ms"), [("point-to-point", 192.0), ("point-to-plane", 48.0)])
-def test_published_lidar_budget(orin, icp: str, ms: float) -> None:
+def test_reference_lidar_budget(orin, icp: str, ms: float) -> None:
     lidar = budget(Workload(lidar_beams=128, lidar_columns=1800, lidar_rate_hz=10, icp=icp),
                    orin).lidar
     assert lidar is not None
@@ -94,7 +94,7 @@ def test_invalid_workload() -> None:
 
 def test_orin_target_has_a_source_for_every_coefficient(orin) -> None:
     assert "orin-nano" in available_targets()
-    assert orin.provenance == "published"
+    assert orin.provenance == "reference"
     for c in orin.coefficients.values():
         assert c.value > 0 and c.source and c.how in ("given", "derived")
     assert orin.coefficients["fast_ns_per_px"].how == "given"
@@ -117,3 +117,16 @@ def test_target_round_trip_and_validation(orin, tmp_path) -> None:
     with pytest.raises(ConfigError, match=r"available targets: .*orin-nano"):
         load_target("no-such-board")
     assert dataclasses.is_dataclass(orin)
+
+
+def test_a_target_file_that_calls_its_figures_published_reads_as_reference(tmp_path) -> None:
+    """Target files written before the rename say provenance = "published"; they load as the
+    reference estimates they are, and the report words them so."""
+    from frontdiag.budget.targets import PROVENANCE_WORDS, load_target, targets_dir
+
+    text = (targets_dir() / "orin-nano.toml").read_text()
+    old = tmp_path / "old.toml"
+    old.write_text(text.replace('provenance = "reference"', 'provenance = "published"'))
+    assert 'provenance = "published"' in old.read_text()
+    assert load_target(str(old)).provenance == "reference"
+    assert "not measured by frontdiag" in PROVENANCE_WORDS["reference"]

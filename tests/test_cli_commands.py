@@ -176,7 +176,7 @@ def test_budget_projection_names_provenance_and_says_when_inputs_disagree(
     assert main(["analyze", str(sample), "--no-camera", "--max-frames", "12", "--out", str(out),
                  "-q", "--fail-on", "never"]) == 0
     orin = targets.load_target("orin-nano")
-    assert orin.provenance == "published"
+    assert orin.provenance == "reference"
     rep = measured.measured_report(out, model.Workload(), orin, orin, "the same file")
     assert "Matching projected" not in rep.method  # LiDAR only: no matching to project
     assert not any("UNRELIABLE" in n or "faster than" in n for n in rep.notes)
@@ -190,7 +190,7 @@ def test_budget_projection_names_provenance_and_says_when_inputs_disagree(
     assert any(n.startswith("UNRELIABLE (lidar)") for n in rep.notes)
     assert render.measured_grids(rep)[0].title.startswith("UNRELIABLE ESTIMATE")
     code, stdout, _ = run(["budget"], capsys)
-    assert code == 0 and "published per-unit figures" in stdout and "(given)" in stdout
+    assert code == 0 and "reference estimates of per-unit costs" in stdout and "(given)" in stdout
 
 
 def test_odometry_logged_after_a_scan_is_used_as_its_prior() -> None:

@@ -1,5 +1,5 @@
 """The latency budget, derived stage by stage from the work each stage does and a target's
-per-unit coefficients (published per-stage figures for a Jetson Orin Nano core, camera and LiDAR).
+per-unit coefficients (reference per-stage estimates for a Jetson Orin Nano core, camera and LiDAR).
 
 Pure functions: a :class:`Workload` and a :class:`~frontdiag.budget.targets.Target` in, a frozen
 :class:`BudgetReport` out. Nothing here prints.
@@ -315,16 +315,16 @@ def derived_numbers(w: Workload) -> dict[str, float]:
 def _footnotes(w: Workload, t: Target, *sensors: SensorBudget) -> tuple[str, ...]:
     camera = sensors[0]
     notes = []
-    if t.provenance == "published":
+    if t.provenance == "reference":
         ransac = camera.stage("ransac").ms
         notes.append(
-            f"RANSAC is the published cost model N × (T_solve + M × T_residual) = {ransac:.1f} ms; "
-            "the published table rounds this stage to 2.2 ms (219 iterations), so the reference "
+            f"RANSAC is the reference cost model N × (T_solve + M × T_residual) = {ransac:.1f} ms; "
+            "the reference table rounds this stage to 2.2 ms (219 iterations), so the reference "
             "18.1 ms total sits about 0.4 ms below this one.")
         if w.matching == "guided":
             notes.append(
-                "Guided matching uses the published 2.13 candidates in a 25 px window where "
-                "the published table says ~12; the comparisons cost microseconds, the per-query "
+                "Guided matching uses the reference 2.13 candidates in a 25 px window where "
+                "the reference table says ~12; the comparisons cost microseconds, the per-query "
                 "overhead dominates the stage.")
     used = {c for s in sensors for st in s.stages for c in st.coefficients}
     from frontdiag.budget.targets import HOW_WORDS, PROVENANCE_WORDS

@@ -5,7 +5,7 @@ A target file is TOML (see ``rules/targets/orin-nano.toml``)::
     [target]
     name = "orin-nano"
     description = "..."
-    provenance = "published"       # published | calibrated
+    provenance = "reference"       # reference | calibrated
 
     [coefficients.fast_ns_per_px]
     value = 3.0
@@ -61,11 +61,13 @@ class Coefficient:
         return COEFFICIENTS[self.name][0]
 
 
-PROVENANCE_ALIASES = {"lesson": "published"}
-"""Older target files name published figures "lesson"."""
+PROVENANCE_ALIASES = {"published": "reference"}
+"""Target files written by earlier versions call reference figures "published"."""
 
 PROVENANCE_WORDS = {
-    "published": "published per-unit figures for that hardware, not measured by frontdiag",
+    "reference": "reference estimates of per-unit costs for that hardware (engineering "
+                 "rules of thumb, not measured by frontdiag: `frontdiag budget --calibrate` "
+                 "times your own machine)",
     "calibrated": "timed by `frontdiag budget --calibrate` on the machine the file names",
 }
 HOW_WORDS = {
@@ -79,7 +81,7 @@ HOW_WORDS = {
 class Target:
     name: str
     description: str
-    provenance: str  # published (stated figures, not measured here) | calibrated
+    provenance: str  # reference (estimates, not measured here) | calibrated
     coefficients: dict[str, Coefficient]
     path: Path | None = None
     machine: dict[str, str] = field(default_factory=dict)
