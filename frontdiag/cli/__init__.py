@@ -45,6 +45,9 @@ app = typer.Typer(
     "Examples:\n\n"
     "  frontdiag info run.mcap\n\n"
     "  frontdiag analyze run.mcap --out results/\n\n"
+    "  frontdiag explain results/ --frame 120\n\n"
+    "  frontdiag analyze logs/ --out fleet/ --jobs 2     # every recording in a folder\n\n"
+    "  frontdiag loops map.g2o --out audit/\n\n"
     "  frontdiag budget --target orin-nano",
     epilog=EPILOG,
     no_args_is_help=True,
