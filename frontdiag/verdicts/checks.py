@@ -412,6 +412,7 @@ def _exposure_context(df: pd.DataFrame, p: Params) -> pd.DataFrame:
     steps = [_step_at(i, res, rej, p, base, sig) for i in range(len(df))]
     return pd.DataFrame({"prev_photo_residual_med": np.concatenate([[np.nan], res[:-1]]),
                          "dark_step": _dark_step(df, p).astype(float),
+                         "ratio_step": _ratio_step(df, p).astype(float),
                          "jumps": [float(j) for j, _ in steps],
                          "recovers_after_frames": [float(r) for _, r in steps]})
 
@@ -500,7 +501,6 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                           f"not x{p['residual_jump']:g} and {p['baseline_sigmas']:g} sigma "
                           "above it"))
     ratio, w = _v(row, "brightness_ratio"), _v(row, "inlier_ratio")
-    trusted = clears = False
     if "ratio_step" in p and not np.isnan(ratio):
         line = p["ratio_step"]
         beyond = ratio >= line or ratio <= 1 / line
@@ -519,7 +519,8 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                       f", but the patches scatter: the median is uncertain to "
                       f"{se * 100:.1f}% (standard error) and must clear the line by {k:g} of "
                       "those, so the surfaces may not have changed at all"))
-    by_ratio = "ratio_step" in p and not np.isnan(ratio) and trusted and clears
+    # the check's own readings (the context), so the words cannot drift from the verdict
+    by_ratio = _v(row, "ratio_step") == 1.0
     by_dark = _v(row, "dark_step") == 1.0
     # where the brightness ratio or the step into darkness calls it a step, the residual
     # reading's look-alikes below only say why that reading alone would not
