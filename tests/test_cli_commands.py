@@ -76,6 +76,16 @@ def test_shell_completion_and_choices_in_help(capsys: pytest.CaptureFixture[str]
     assert "[warn|fail|never]" in out and "[parquet|csv]" in out
 
 
+def test_flags_in_help_take_no_value(capsys: pytest.CaptureFixture[str]) -> None:
+    # a flag's row shows no value type: "--json <bool>" reads as if it took true or false
+    for cmd in (["--help"], ["analyze", "--help"], ["loops", "--help"], ["budget", "--help"]):
+        code, out, _ = run(cmd, capsys)
+        assert code == 0 and "--" in out
+        assert "<bool>" not in out, cmd
+    code, out, _ = run(["analyze", "--help"], capsys)
+    assert "<int>" in out  # options that take a value keep their type
+
+
 def test_explain_on_a_recording_says_to_analyse_first(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     log = write_recording(tmp_path / "run.mcap", "mcap", n=4)

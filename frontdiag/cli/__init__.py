@@ -175,6 +175,25 @@ def _terminate_as_interrupt() -> Any:
     return previous
 
 
+def _command() -> Any:
+    """The click command tree of ``app``, with the value type taken off the flags' help rows:
+    typer shows ``<bool>`` beside ``--json`` or ``--no-mutual`` as if the flag took a value."""
+    root = typer.main.get_command(app)
+
+    def walk(cmd: Any) -> None:
+        # the --help option is made on first use, from the command's context settings
+        ctx = cmd.context_class(cmd, **(cmd.context_settings or {}))
+        for param in [*cmd.params, cmd.get_help_option(ctx)]:
+            # typer's own Option class (it vendors click): read the flag attribute, not the type
+            if param is not None and getattr(param, "is_flag", False) and param.metavar is None:
+                param.metavar = ""
+        for sub in getattr(cmd, "commands", {}).values():
+            walk(sub)
+
+    walk(root)
+    return root
+
+
 def main(argv: list[str] | None = None) -> int:
     """Console entry point; returns the process exit code."""
     import signal
@@ -185,7 +204,7 @@ def main(argv: list[str] | None = None) -> int:
     err = _err_console()
     restore = _terminate_as_interrupt()
     try:
-        rv = typer.main.get_command(app).main(args=args, prog_name="frontdiag",
+        rv = _command().main(args=args, prog_name="frontdiag",
                                                standalone_mode=False)
     except FrontdiagError as exc:
         ConsoleWarnings.flush(superseded_by=str(exc))
