@@ -311,7 +311,9 @@ def _matching_table_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                    "ratio test refuses as much as on repetitive structure (~85%)")
     else:
         out.append(f"absolute: ratio_reject_rate {rej:.0%} < {p['reject_repetitive']:.0%} "
-                   "(healthy ~30%, exposure step ~55%)")
+                   "(in the reference scene: healthy ~30%, exposure step ~55%"
+                   + ("; the relative reading below is this recording's own)"
+                      if "reject_excess" in p else ")"))
     if "reject_excess" in p and not np.isnan(rej):
         out.append(_relative_rejection_words(row, p))
     amb = _v(row, "ratio_ambiguous_rate")
@@ -484,8 +486,9 @@ def _exposure_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     gain = _v(row, "affine_gain")
     res_aff = _v(row, "photo_residual_affine_med")
     out = [f"|d_mean_intensity| {_fmt(abs(dm))} vs step > {p['dmean_step']:g} grey levels",
-           f"absolute: photo_residual_med {_fmt(res)} vs >= {p['residual_step']:g} (healthy ~4, "
-           "step 20-25)"]
+           f"absolute: photo_residual_med {_fmt(res)} vs >= {p['residual_step']:g} (in the reference "
+           "scene: healthy ~4, step 20-25" + ("; the relative reading below is this recording's "
+                                              "own)" if "baseline_window_s" in p else ")")]
     base, sig = _v(row, "photo_residual_base"), _v(row, "photo_residual_base_sigma")
     if "baseline_window_s" in p:
         if np.isnan(base):
