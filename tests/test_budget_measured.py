@@ -110,6 +110,23 @@ def test_cli_gates(tmp_path, capsys, monkeypatch) -> None:
     assert main([*base, "--what-if", "matching=brute"]) == 2
 
 
+def test_the_result_directory_may_be_given_as_the_argument(tmp_path, capsys, monkeypatch) -> None:
+    # `budget RESULT_DIR`, as `explain`, `report` and `eval` take it, is `budget --from RESULT_DIR`
+    monkeypatch.setenv("COLUMNS", "200")
+    d = _result_dir(tmp_path)
+    machine = str(targets_dir() / "orin-nano.toml")
+    assert main(["budget", "--from", str(d), "--machine", machine, "--json"]) == 0
+    by_option = json.loads(capsys.readouterr().out)
+    assert main(["budget", str(d), "--machine", machine, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out) == by_option
+    assert by_option["estimate"] is True
+    assert main(["budget", str(d), "--from", str(d), "--machine", machine, "--json"]) == 0
+    capsys.readouterr()
+    other = tmp_path / "other"
+    assert main(["budget", str(d), "--from", str(other), "--machine", machine]) == 2
+    assert "two result directories" in capsys.readouterr().err
+
+
 def test_calibrates_and_caches_when_no_machine_given(tmp_path, capsys, monkeypatch) -> None:
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     d = _result_dir(tmp_path)

@@ -32,7 +32,7 @@ Examples:
 
   frontdiag budget --calibrate -o rules/targets/my-robot.toml
 
-  frontdiag budget --from results/ --target orin-nano --max-p999-ms 33
+  frontdiag budget results/ --target orin-nano --max-p999-ms 33    # measured timings (= --from)
 
   frontdiag budget --max-util 0.6 --markdown
 """
@@ -43,6 +43,10 @@ def register(app: typer.Typer) -> None:
 
     @app.command("budget", help=HELP, no_args_is_help=False)
     def budget(
+        result_dir: Path | None = typer.Argument(
+            None, metavar="[RESULT_DIR]", show_default=False,
+            help="Result directory of `frontdiag analyze --out` (the same as --from): its "
+            "measured timings, projected onto the target."),
         target: str = typer.Option("orin-nano", "--target", "-t",
                                    help="Target name in rules/targets, or a target .toml file."),
         camera: str | None = typer.Option(None, "--camera", help="Camera as WxH@HZ "
@@ -105,6 +109,11 @@ def _run(o: dict) -> int:
 
     if o["as_json"] and o["markdown"]:
         raise ConfigError("--json and --markdown are exclusive; pick one")
+    if o["result_dir"] is not None:
+        if o["from_dir"] is not None and o["from_dir"] != o["result_dir"]:
+            raise ConfigError(f"two result directories: {o['result_dir']} and --from "
+                              f"{o['from_dir']}; give one")
+        o["from_dir"] = o["result_dir"]
     if o["list_targets"]:
         return _emit_targets(o, available_targets())
     if o["calibrate"]:
