@@ -26,11 +26,21 @@ from typing import Any
 import pandas as pd
 
 from frontdiag import __version__
-from frontdiag.errors import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, ConfigError, FrontdiagError
+from frontdiag.errors import (
+    EXIT_INTERNAL,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    ConfigError,
+    FrontdiagError,
+    RecordingError,
+)
 from frontdiag.io.readers import (
+    RESULT_NOT_RECORDING,
+    is_result_dir,
     recording_files,
     recording_kind,
     recording_size,
+    result_dir_hint,
     ros2_parts,
     split_parts,
 )
@@ -76,6 +86,12 @@ def discover(inputs: Iterable[str | Path], skipped: list[Path] | None = None) ->
             raise ConfigError(f"{text}: no such file, folder or matching recording",
                               hint="pass recordings, folders of recordings or a quoted glob")
         for p in paths:
+            if p.is_dir() and is_result_dir(p):
+                if len(paths) == 1 and paths[0] == Path(text):  # named, not globbed
+                    raise RecordingError(p, RESULT_NOT_RECORDING, hint=result_dir_hint(p))
+                if skipped is not None:
+                    skipped.append(p)
+                continue
             if p.is_file() and p.suffix not in RECORDING_SUFFIXES \
                     and recording_kind(p) in (None, "zstd"):
                 if skipped is not None:

@@ -357,3 +357,25 @@ def test_the_console_summary_says_how_many_were_skipped_and_only_when_some_were(
     assert "skipped" not in fresh and "fleet_summary.parquet" in fresh
     again = text([row("r0", "skipped"), row("r1", "ok"), row("r2", "skipped")])
     assert "2 skipped: their results were current" in again and "--force" in again
+
+
+def test_a_result_folder_is_not_taken_for_a_recording(
+        logs: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # analyze's --out holds diagnostics.mcap, which alone would read as a one-file bag folder
+    res = tmp_path / "my run"
+    assert main(["analyze", str(logs / "r0.mcap"), "--out", str(res), "-q",
+                 "--fail-on", "never"]) == 0
+    capsys.readouterr()
+    for cmd in (["analyze", str(res)], ["info", str(res)],
+                ["analyze", str(res), str(logs / "r1.mcap"), "--out", str(tmp_path / "f")]):
+        assert main(cmd) == 2, cmd
+        err = " ".join(capsys.readouterr().err.split())
+        assert "a frontdiag result folder" in err and "not a recording" in err
+        # what to run instead, quoted for the shell, and the recording it came from
+        assert f"frontdiag explain '{res}'" in err
+        assert f"frontdiag analyze {logs / 'r0.mcap'}" in err
+    # a glob that also matches result folders leaves them out, as it does notes and labels
+    skipped: list[Path] = []
+    assert discover([str(tmp_path / "*"), str(logs / "r1.mcap")], skipped) \
+        == [(logs / "r1.mcap").resolve()]
+    assert res in skipped

@@ -624,6 +624,33 @@ def recording_size(path: Path) -> int:
     return sum(f.stat().st_size for f in recording_files(path))
 
 
+RESULT_NOT_RECORDING = "a frontdiag result folder (the --out of `frontdiag analyze`), not a recording"
+
+
+def is_result_dir(path: Path) -> bool:
+    """Whether ``path`` is what ``frontdiag analyze --out`` writes (its diagnostics.mcap would
+    otherwise read as a one-file bag folder)."""
+    return (path / "manifest.json").is_file() and not (path / "metadata.yaml").exists() \
+        and any((path / n).is_file() for n in ("frames.parquet", "frames.csv"))
+
+
+def result_dir_hint(path: Path) -> str:
+    """What to run on a result folder, and the recording it was made from (its manifest's)."""
+    import json
+    import shlex
+
+    rec = ""
+    try:
+        src = json.loads((path / "manifest.json").read_text()).get("input", {}).get("path")
+        if src:
+            rec = f"; analyse its recording again with `frontdiag analyze {shlex.quote(src)}`"
+    except (OSError, ValueError, AttributeError):
+        pass
+    q = shlex.quote(str(path))
+    return (f"read it with `frontdiag explain {q}`, `frontdiag report {q}` or "
+            f"`frontdiag eval {q}`{rec}")
+
+
 def plan(path: Path) -> _Plan:
     """Decide which backend reads ``path`` (pure: looks at names and magic bytes only)."""
     if not path.exists():
@@ -631,6 +658,8 @@ def plan(path: Path) -> _Plan:
                              hint="check the path; frontdiag reads .bag, .db3, .mcap files and "
                                   "ROS 2 bag folders")
     if path.is_dir():
+        if is_result_dir(path):
+            raise RecordingError(path, RESULT_NOT_RECORDING, hint=result_dir_hint(path))
         if (path / "metadata.yaml").exists():
             mcaps = sorted(path.glob("*.mcap"))
             if len(mcaps) == 1 and not list(path.glob("*.db3")):
