@@ -325,6 +325,20 @@ def test_unknown_container(tmp_path: Path) -> None:
         open_recording(p)
 
 
+def test_a_pose_graph_given_as_a_recording_points_to_the_loop_audit(tmp_path: Path) -> None:
+    g = tmp_path / "run graph.g2o"
+    g.write_text("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\n"
+                 "EDGE_SE2 0 1 1 0 0 100 0 0 100 0 1000\n")
+    with pytest.raises(RecordingError, match="unknown container") as err:
+        open_recording(g)
+    assert f"frontdiag loops '{g}'" in (err.value.hint or "")
+    notes = tmp_path / "notes.txt"
+    notes.write_text("EDGES of the map, VERTEX_SE2 is mentioned only here\n")
+    with pytest.raises(RecordingError) as err:
+        open_recording(notes)
+    assert "loops" not in (err.value.hint or "")
+
+
 def test_ambiguous_camera_topics_list_the_exact_option(tmp_path: Path) -> None:
     def extra(w, i, t):  # type: ignore[no-untyped-def]
         w.write("/cam2/image_raw", "sensor_msgs/msg/Image", image_msg(frame(i), "mono8", t), t)

@@ -1277,6 +1277,12 @@ def test_an_edge_to_an_undefined_vertex_is_refused_naming_it(tmp_path: Path, cap
     assert "edge 5->999: vertex 999 has no VERTEX line" in err and "Traceback" not in err
 
 
+def test_a_folder_is_refused_saying_what_loops_reads(tmp_path: Path, capsys) -> None:
+    assert main(["loops", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "a folder" in err and "pose-graph file" in err and "Errno" not in err
+
+
 def test_a_graph_without_odometry_is_refused(tmp_path: Path, capsys) -> None:
     path = tmp_path / "loops_only.g2o"
     path.write_text(_edge2d(0, 40, 0.1, 0.0, 0.0, (100.0, 0.0, 0.0, 100.0, 0.0, 1e4)) + "\n"

@@ -22,6 +22,7 @@ fields of their ``sensor_msgs`` counterparts.
 from __future__ import annotations
 
 import logging
+import shlex
 import sqlite3
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
@@ -637,7 +638,6 @@ def is_result_dir(path: Path) -> bool:
 def result_dir_hint(path: Path) -> str:
     """What to run on a result folder, and the recording it was made from (its manifest's)."""
     import json
-    import shlex
 
     rec = ""
     try:
@@ -713,8 +713,25 @@ def plan(path: Path) -> _Plan:
                                    "file?), not a recording frontdiag reads as it is",
                              hint="pass the bag folder with its metadata.yaml, or decompress "
                                   "it first (zstd -d FILE)")
+    hint = "frontdiag reads .bag, .db3, .mcap files and ROS 2 bag folders"
+    if _looks_like_pose_graph(path):
+        hint = f"it reads as a pose graph (g2o or TORO): audit its loop closures with " \
+               f"`frontdiag loops {shlex.quote(str(path))}`"
     raise RecordingError(path, "unknown container (not MCAP, ROS 1 bag v2.0 or sqlite3)",
-                         hint="frontdiag reads .bag, .db3, .mcap files and ROS 2 bag folders")
+                         hint=hint)
+
+
+def _looks_like_pose_graph(path: Path) -> bool:
+    """Whether the file starts like a g2o or TORO graph (a VERTEX or EDGE tag on its first
+    lines)."""
+    try:
+        with path.open("rb") as fh:
+            head = fh.read(4096)
+    except OSError:
+        return False
+    tags = (b"VERTEX_SE2", b"VERTEX_SE3", b"EDGE_SE2", b"EDGE_SE3", b"VERTEX2", b"EDGE2")
+    return any(line.split(maxsplit=1)[:1] and line.split(maxsplit=1)[0] in tags
+               for line in head.splitlines()[:20])
 
 
 def bag_compression(metadata: Path) -> tuple[str, str]:

@@ -133,6 +133,9 @@ def read_graph(path: Path | str, *, sqrt_info: bool = False,
         text = path.read_text()
     except FileNotFoundError:
         raise GraphError(path, "no such file") from None
+    except IsADirectoryError:
+        raise GraphError(path, "a folder; `frontdiag loops` reads one pose-graph file (g2o "
+                               "VERTEX_SE2/SE3 and EDGE_SE2/SE3, or TORO VERTEX2/EDGE2)") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise GraphError(path, f"cannot read ({exc})") from None
     dim = 0
