@@ -98,6 +98,15 @@ def test_explain_on_a_recording_says_to_analyse_first(
     assert code == 2 and "frames 0-3" in err
     code, stdout, _ = run(["explain", str(out), "--time", "0.1"], capsys)
     assert code == 0 and "frontend status" in stdout and "verdict (what the rules found)" in stdout
+    # the frame as argument is --frame
+    code, by_option, _ = run(["explain", str(out), "--frame", "2", "--json"], capsys)
+    code2, by_argument, _ = run(["explain", str(out), "2", "--json"], capsys)
+    assert code == code2 == 0 and json.loads(by_argument) == json.loads(by_option)
+    assert json.loads(by_argument)["frame"] == 2
+    code, _, err = run(["explain", str(out), "2", "--frame", "3"], capsys)
+    assert code == 2 and "two frames" in err
+    code, _, err = run(["explain", str(out), "2", "--time", "0.1"], capsys)
+    assert code == 2 and "exactly one" in err
 
 
 def test_eval_finds_labels_from_the_manifest_and_gates_on_accuracy(

@@ -108,7 +108,7 @@ def _pick_row(table: Any, frame: int | None, t: float | None, topic: str | None)
     from frontdiag.verdicts.engine import relative_time
 
     if (frame is None) == (t is None):
-        raise ConfigError("give exactly one of --frame N or --time SECONDS",
+        raise ConfigError("give exactly one of a frame (FRAME or --frame N) or --time SECONDS",
                           hint=f"this result holds {_frame_range(table, topic)}")
     cand = np.arange(len(table))
     if topic is not None:
@@ -314,6 +314,8 @@ def register(app: typer.Typer) -> None:
         result_dir: Path = typer.Argument(..., metavar="RESULT_DIR",
                                           help="The --out directory of `frontdiag analyze` "
                                           "(not the recording)."),
+        frame_arg: int | None = typer.Argument(None, metavar="[FRAME]", show_default=False,
+                                               help="Frame index: the same as --frame."),
         frame: int | None = typer.Option(None, "--frame", help="Frame index (the table's "
                                          "`frame` column)."),
         t: float | None = typer.Option(None, "--time", "--t", metavar="SECONDS",
@@ -342,6 +344,8 @@ def register(app: typer.Typer) -> None:
           frontdiag explain results/ --time 12.5 --topic /lidar/points --json
 
           frontdiag explain results/ --frame 412 --png frame412.png  # the picture too
+
+          frontdiag explain results/ 412           # the frame as argument: --frame 412
         """
         from rich.markup import escape
 
@@ -350,6 +354,10 @@ def register(app: typer.Typer) -> None:
 
         if png is not None and not png.parent.is_dir():
             raise ConfigError(f"--png {png}: folder {png.parent} does not exist")
+        if frame_arg is not None:
+            if frame is not None and frame != frame_arg:
+                raise ConfigError(f"two frames: {frame_arg} and --frame {frame}; give one")
+            frame = frame_arg
         data = build_explanation(result_dir, frame, t, topic, rules_dir, overrides)
         if png is not None:
             from frontdiag.report.frame_image import explain_png
