@@ -362,6 +362,25 @@ def test_cli_outputs_and_exit_codes(tmp_path: Path, capsys) -> None:
     assert payload["optimize"]["ate_m"] > 0.1
 
 
+def test_cli_keeps_an_earlier_result_and_hints_the_command_it_ran(tmp_path: Path, capsys,
+                                                                  monkeypatch) -> None:
+    monkeypatch.setenv("COLUMNS", "200")
+    gpath = _square_graph(tmp_path / "my graph.g2o", [(5, 45, 0.0), (7, 47, 4.0)])
+    out = tmp_path / "out"
+    assert main(["loops", str(gpath), "--out", str(out), "--odom-max-gap", "1",
+                 "--calibrate"]) == 1
+    text = capsys.readouterr().out
+    # every file written with its folder; the --explain hint reads the graph as this run did
+    assert f"{out / 'loops.parquet'}, {out / 'loops.html'}, {out / 'manifest.json'}" in text
+    assert f"frontdiag loops '{gpath}' --calibrate --explain" in text
+    before = (out / "manifest.json").read_bytes()
+    # a second audit into the same folder, or into an analysis's, is refused before any work
+    assert main(["loops", str(gpath), "--out", str(out)]) == 2
+    assert "already holds a result" in capsys.readouterr().err
+    assert (out / "manifest.json").read_bytes() == before
+    assert main(["loops", str(gpath), "--out", str(out), "--force", "-q"]) == 1
+
+
 def test_cli_junit_path_is_checked_before_the_audit(tmp_path: Path, capsys) -> None:
     """--junit naming a folder or the input graph: one line, exit 2, before any work; a
     missing parent folder is created."""

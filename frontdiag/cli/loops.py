@@ -86,18 +86,28 @@ def loops_cmd(
     as_json: bool = typer.Option(False, "--json", help="Print a machine-readable summary."),
     top: int = typer.Option(10, "--top", help="Flagged loops listed in the summary."),
     quiet: bool = typer.Option(False, "--quiet", "-q", help="No progress or table."),
+    force: bool = typer.Option(False, "--force",
+                               help="Replace an earlier result in --out (refused without it)."),
 ) -> int:
     from frontdiag.cli._console import make_console
     from frontdiag.errors import ConfigError
     from frontdiag.loops import audit, read_graph, summary
     from frontdiag.loops.report import gate_loops, render_loops, write_loops_junit
     from frontdiag.loops.rules import load_loop_rules
-    from frontdiag.output import check_output_file, guarded_write, prepare_out_dir, write_manifest
+    from frontdiag.output import (
+        check_output_file,
+        guarded_write,
+        prepare_out_dir,
+        refuse_overwrite,
+        write_manifest,
+    )
 
     if fail_on not in ("warn", "fail", "never"):
         raise ConfigError(f"--fail-on {fail_on!r}: choose warn, fail or never")
     if odom_max_gap < 1:
         raise ConfigError(f"--odom-max-gap {odom_max_gap}: need at least 1")
+    if out is not None:
+        refuse_overwrite(out, force)  # an earlier audit's, or an analysis's manifest.json
     out_dir = prepare_out_dir(out, [graph_file]) if out is not None else None
     if junit is not None:
         check_output_file(junit, "--junit", [graph_file], what="graph")
@@ -153,8 +163,33 @@ def loops_cmd(
             payload["optimize"] = opt
         typer.echo(json.dumps(plain(payload), indent=2, default=str))
     elif not quiet:
-        render_loops(make_console(), result, summ, gate_result, out_dir, opt, top)
+        render_loops(make_console(), result, summ, gate_result, out_dir, opt, top,
+                     rerun=_rerun(graph_file, sqrt_info=sqrt_info, layout=layout,
+                                  odom_max_gap=odom_max_gap, rules_file=rules_file,
+                                  no_map=no_map, calibrate=calibrate))
     return gate_result.exit_code
+
+
+def _rerun(graph_file: Path, *, sqrt_info: bool, layout: str, odom_max_gap: int,
+           rules_file: Path | None, no_map: bool, calibrate: bool) -> str:
+    """The command that reads and audits the graph as this run did (the options that change
+    the verdicts), quoted for the shell: what --explain is added to."""
+    import shlex
+
+    args = ["frontdiag", "loops", str(graph_file)]
+    if sqrt_info:
+        args.append("--sqrt-info")
+    if layout != "auto":
+        args += ["--layout", layout]
+    if odom_max_gap != 1:
+        args += ["--odom-max-gap", str(odom_max_gap)]
+    if rules_file is not None:
+        args += ["--rules", str(rules_file)]
+    if no_map:
+        args.append("--no-map")
+    if calibrate:
+        args.append("--calibrate")
+    return shlex.join(args)
 
 
 class _Null:

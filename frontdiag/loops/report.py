@@ -6,6 +6,7 @@ ranked by ``SEVERITY_RANK``): exit 1 when a loop's verdict is at or above --fail
 
 from __future__ import annotations
 
+import shlex
 import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
@@ -67,7 +68,10 @@ def _n(count: int, noun: str) -> str:
 
 
 def render_loops(console: Console, result: LoopAudit, summ: dict[str, Any], gate: GateResult,
-                 out_dir: Path | None, opt: dict[str, Any] | None, top: int) -> None:
+                 out_dir: Path | None, opt: dict[str, Any] | None, top: int,
+                 rerun: str | None = None) -> None:
+    """The console summary. ``rerun``: the command line that reads the graph as this run did
+    (its path quoted for the shell, the reading options), for the --explain hint."""
     g = result.graph
     v = summ["verdicts"]
     console.print(f"[bold]frontdiag loops[/] {escape(g.path)}  [dim]SE({g.dim}), "
@@ -98,15 +102,17 @@ def render_loops(console: Console, result: LoopAudit, summ: dict[str, Any], gate
                       _fmt(w["f"], ".5f"), _fmt(w["displacement_m"], ".2f"),
                       f"[{_STYLE[w['verdict']]}]{w['verdict']}[/] {w['rule']}")
         console.print(t)
-        console.print(f"[dim]frontdiag loops {escape(g.path)} --explain "
-                      f"{worst[0]['loop']}   # the stiffness arithmetic of the worst loop[/]")
+        cmd = rerun or f"frontdiag loops {shlex.quote(g.path)}"
+        console.print(f"[dim]{escape(cmd)} --explain {worst[0]['loop']}   # the stiffness "
+                      "arithmetic of the worst loop[/]", highlight=False, soft_wrap=True)
     if opt is not None:
         _render_opt(console, opt)
     for note in summ["notes"]:
         console.print(f"[yellow]note:[/] {escape(note)}", highlight=False)
     if out_dir is not None:
-        console.print(f"[green]wrote[/] {escape(str(out_dir))}/{LOOPS_FILE}, loops.html, "
-                      "manifest.json")
+        console.print("[green]wrote[/] " + ", ".join(
+            escape(str(out_dir / name)) for name in (LOOPS_FILE, "loops.html", "manifest.json")),
+            highlight=False, soft_wrap=True)
     if gate.passed:
         console.print(f"[green]gate passed[/] (fail-on {gate.fail_on})")
     else:
