@@ -435,7 +435,8 @@ def _print_fleet(r: dict[str, Any]) -> None:
     print(f"\n3. fleet of {r['recordings']} recordings: --jobs 1 {r['wall_jobs1']:.1f} s, "
           f"--jobs 2 {r['wall_jobs2']:.1f} s: speed-up {r['speedup']:.2f}x (summaries equal: "
           f"{r['summary_equal_jobs']}); Dask LocalCluster (2 workers) {r['wall_dask']:.1f} s, "
-          f"summary equal to the local one: {r['summary_equal_dask']}")
+          f"summary equal to the local one: {r['summary_equal_dask']}; Dask workers' peak RSS "
+          f"{_mib(r['rss_workers_dask'])}")
     print(f"   CPU seconds: --jobs 1 {r['cpu_main_jobs1']:.1f}; --jobs 2 busiest worker "
           f"{r['cpu_worker_jobs2']:.1f} + main {r['cpu_main_jobs2']:.1f}: CPU-time speed-up "
           f"{r['cpu_speedup']:.2f}x")

@@ -104,14 +104,53 @@ def worker_init() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+# glibc's mallopt parameters (malloc.h) and the values its own dynamic thresholds grow to on
+# 64-bit Linux (DEFAULT_MMAP_THRESHOLD_MAX 32 MiB; the trim threshold follows at twice it)
+M_TRIM_THRESHOLD, M_MMAP_THRESHOLD = -1, -3
+FRAME_MMAP_THRESHOLD = 32 * 2**20
+FRAME_TRIM_THRESHOLD = 64 * 2**20
+_MALLOC_FIXED = ("MALLOC_TRIM_THRESHOLD_", "MALLOC_MMAP_THRESHOLD_", "MALLOC_TOP_PAD_")
+
+
+def frame_sized_malloc() -> bool:
+    """Undo an environment that fixed glibc's malloc thresholds low; returns whether it did.
+
+    Dask's nanny starts every worker with ``MALLOC_TRIM_THRESHOLD_=65536`` (its
+    ``distributed.nanny.pre-spawn-environ``). Setting any threshold turns glibc's dynamic ones
+    off, which leaves the mmap threshold at 128 KiB: every picture-sized array (a 1280x720 grey
+    frame is 900 KiB, and each pyramid level, patch stack and temporary above 128 KiB too) is
+    then mapped, zero-filled and unmapped at each use, and every free above 64 KiB is trimmed.
+    A fleet task took 1.5-1.75x its time in such a worker (1.2-1.3 s against 1.9-2.1 s a
+    recording of 90 frames, benchmarks/bench_real.py's fleet). Where one of those variables is
+    set, the thresholds are raised to what glibc's dynamic ones grow to on 64-bit Linux
+    (mmap 32 MiB, trim 64 MiB: freed memory up to that is kept for the next frame rather than
+    returned); elsewhere glibc's own behaviour is left alone."""
+    import os
+    import sys
+
+    if not sys.platform.startswith("linux") or not any(v in os.environ for v in _MALLOC_FIXED):
+        return False
+    import ctypes
+
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        return bool(libc.mallopt(M_MMAP_THRESHOLD, FRAME_MMAP_THRESHOLD)
+                    and libc.mallopt(M_TRIM_THRESHOLD, FRAME_TRIM_THRESHOLD))
+    except (OSError, AttributeError):  # not glibc (musl has no mallopt to speak of)
+        return False
+
+
 @contextmanager
 def one_core() -> Iterator[None]:
     """A task that is itself the parallelism (a window, a recording of a fleet): OpenCV and
     BLAS on one thread each, so that N tasks use N cores and not N x threads. OpenCV's setting
-    stays for the process (a worker runs only such tasks); BLAS's is restored after."""
+    stays for the process (a worker runs only such tasks); BLAS's is restored after. A worker
+    whose environment fixed glibc's malloc thresholds low (a Dask worker) gets thresholds fit
+    for pictures (:func:`frame_sized_malloc`)."""
     import cv2
     from threadpoolctl import threadpool_limits
 
+    frame_sized_malloc()
     cv2.setNumThreads(1)
     with threadpool_limits(limits=1, user_api="blas"):
         yield

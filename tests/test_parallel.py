@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -397,3 +400,55 @@ def test_a_window_asked_to_stop_in_its_read_on_still_completes_its_rows(
     assert max(seen) > first.own_to  # the read-on went past the frame the signal landed on
     assert [r["frame"] for r in asked.rows] == list(range(first.own_to))
     _same_table(pd.DataFrame(calm.rows), pd.DataFrame(asked.rows))
+
+
+_MALLINFO_PROBE = """
+import ctypes, sys
+import numpy as np
+from frontdiag.parallel import frame_sized_malloc
+
+class MallInfo2(ctypes.Structure):
+    _fields_ = [(n, ctypes.c_size_t) for n in ("arena", "ordblks", "smblks", "hblks", "hblkhd",
+                                              "usmblks", "fsmblks", "uordblks", "fordblks",
+                                              "keepcost")]
+
+libc = ctypes.CDLL("libc.so.6")
+libc.mallinfo2.restype = MallInfo2
+
+def mapped(nbytes):
+    # mmapped chunks while a picture-sized array is alive, beyond those before it
+    before = libc.mallinfo2().hblks
+    a = np.empty(nbytes, np.uint8)
+    a[:] = 1
+    n = libc.mallinfo2().hblks - before
+    del a
+    return n
+
+frame = 1280 * 720 * 4
+first, second = mapped(frame), mapped(frame)
+did = frame_sized_malloc()
+print(first, second, int(did), mapped(frame))
+"""
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="glibc's malloc")
+def test_a_dask_like_environment_gets_malloc_thresholds_fit_for_pictures() -> None:
+    """Dask's nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536, which fixes glibc's mmap
+    threshold at 128 KiB: every picture-sized array is mapped afresh. A fleet task raises it;
+    where nothing fixed the thresholds it leaves glibc's dynamic ones alone."""
+    import ctypes
+
+    try:
+        ctypes.CDLL("libc.so.6").mallinfo2  # noqa: B018  glibc 2.33 and later
+    except (OSError, AttributeError):
+        pytest.skip("not glibc 2.33+")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("MALLOC_")}
+    run = [sys.executable, "-c", _MALLINFO_PROBE]
+    fixed = subprocess.run(run, env={**env, "MALLOC_TRIM_THRESHOLD_": "65536"},
+                           capture_output=True, text=True, check=True).stdout.split()
+    # fixed low: mapped every time until the thresholds are raised, then taken from the heap
+    assert fixed == ["1", "1", "1", "0"]
+    dynamic = subprocess.run(run, env=env, capture_output=True, text=True,
+                             check=True).stdout.split()
+    # glibc's own: the first is mapped, its free raises the threshold; nothing is changed
+    assert dynamic == ["1", "0", "0", "0"]
