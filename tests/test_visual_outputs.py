@@ -268,3 +268,108 @@ def test_report_renders_in_headless_chromium(analysed: tuple[Path, Path],
     assert len(drawn) == n >= 4
     assert all(k > 0 for k in drawn), drawn
     assert (tmp_path / "report.png").stat().st_size > 10_000
+
+
+def test_a_long_series_is_drawn_as_its_envelope() -> None:
+    from frontdiag.report.html import envelope
+
+    v = np.sin(np.arange(100_000) / 500.0)
+    v[73_519] = 9.0  # a one-row spike
+    v[20_000:30_000] = np.nan  # a stretch with no reading
+    pos = envelope(v, 4000)
+    assert len(pos) <= 4000 and np.all(np.diff(pos) > 0)
+    assert 73_519 in pos  # the spike survives
+    assert np.isnan(v[pos][(pos >= 20_100) & (pos < 29_900)]).all()  # the gap stays a gap
+    assert np.nanmax(v[pos]) == 9.0 and np.nanmin(v[pos]) == np.nanmin(v)
+    short = np.arange(50.0)
+    assert envelope(short, 4000).tolist() == list(range(50))  # short series: every row
+
+
+def test_episodes_closer_than_a_pixel_are_one_shaded_stretch() -> None:
+    from frontdiag.report.html import episode_spans
+
+    eps = pd.DataFrame({
+        "start_t_rel_s": [1.0, 1.3, 10.0, 10.0, 50.0, 99.0],
+        "end_t_rel_s": [1.2, 1.3, 12.0, 11.0, 50.0, 99.0],
+        "severity": ["warn", "warn", "warn", "fail", "warn", "warn"],
+        "condition": ["exposure_step", "exposure_step", "pure_rotation", "planar_degeneracy",
+                      "exposure_step", "exposure_step"]})
+    spans = episode_spans(eps, 0.0, 100.0)  # 0.05 s: a 2000th of the plot's width
+    warn = sorted((x0, x1, c) for x0, x1, s, c in spans if s == "warn")
+    fail = [(x0, x1, c) for x0, x1, s, c in spans if s == "fail"]
+    # 1.2 and 1.3 lie 0.1 s apart minus the 0.025 s each one-frame episode is widened by
+    assert [w[2] for w in warn] == [["exposure_step"], ["exposure_step"], ["pure_rotation"],
+                                    ["exposure_step"], ["exposure_step"]]
+    assert fail == [(10.0, 11.0, ["planar_degeneracy"])]  # another severity stays apart
+    assert warn[1][0] == pytest.approx(1.275) and warn[3][:2] == pytest.approx((49.975, 50.025))
+    # on a plot of an hour the first two are under a pixel apart: one stretch, one name
+    spans = episode_spans(eps, 0.0, 3600.0)
+    assert sorted((round(x0, 3), c) for x0, _, s, c in spans if s == "warn")[0] \
+        == (1.0, ["exposure_step"])
+    assert len([s for s in spans if s[2] == "warn"]) == 4
+
+
+def test_a_long_result_is_plotted_in_a_bounded_size(analysed: tuple[Path, Path],
+                                                    tmp_path: Path) -> None:
+    """An hour of rows and hundreds of episodes: every plot keeps at most MAX_PLOT_POINTS
+    points a line and one shape per stretch it can show (Plotly's add_vrect per episode took
+    minutes here), and the report is written."""
+    import shutil
+
+    from frontdiag.report.html import (
+        MAX_LABELLED_SPANS,
+        MAX_PLOT_POINTS,
+        load_run,
+        metric_figure,
+        plotted_metrics,
+    )
+    from frontdiag.report.thresholds import rule_thresholds
+
+    _, out = analysed
+    long = tmp_path / "long"
+    shutil.copytree(out, long)
+    table = pd.read_parquet(out / "frames.parquet")
+    eps = pd.read_parquet(out / "episodes.parquet")
+    span_s = float(table["t_rel_s"].max()) + 2.0  # copies 2 s apart: far more than a pixel
+    n_frames = int(table["frame"].max()) + 1
+    copies = 150
+    tables, episodes = [], []
+    for i in range(copies):
+        t = table.copy()
+        t["frame"] += i * n_frames
+        t["t_ns"] += int(i * span_s * 1e9)
+        t["t_rel_s"] += i * span_s
+        if i:  # each copy a stretch of its own, as after a pause: its episodes stay its own
+            t.loc[t.index[t["sensor"] == "camera"][0], "status"] = "after_gap"
+        tables.append(t)
+        e = eps.copy()
+        for c in ("start_frame", "end_frame"):
+            e[c] += i * n_frames
+        for c in ("start_t_ns", "end_t_ns"):
+            e[c] += int(i * span_s * 1e9)
+        for c in ("start_t_rel_s", "end_t_rel_s"):
+            e[c] += i * span_s
+        episodes.append(e)
+    pd.concat(tables, ignore_index=True).to_parquet(long / "frames.parquet")
+    pd.concat(episodes, ignore_index=True).to_parquet(long / "episodes.parquet")
+    run = load_run(long)
+    cam = run.table[run.table["sensor"] == "camera"]
+    topic = str(cam["topic"].iloc[0])
+    assert len(cam) > MAX_PLOT_POINTS
+    n_eps = int(((run.verdicts.episodes["sensor"] == "camera")).sum())
+    assert n_eps > MAX_LABELLED_SPANS
+    ths = rule_thresholds(run.ruleset)
+    metric = plotted_metrics(run.table, "camera", ths)[0]
+    fig = metric_figure(run, run, "camera", topic, metric, ths)
+    for trace in fig.data:
+        assert len(trace.x) <= MAX_PLOT_POINTS
+    rects = [sh for sh in fig.layout.shapes if sh.type == "rect"]
+    assert len(rects) == n_eps  # apart on the plot: one shaded stretch each
+    assert not [a for a in fig.layout.annotations if a.textangle == -90]  # too many to name
+    # the line's extremes are the table's
+    line = np.array([y for y in fig.data[1].y if y is not None], dtype=float)
+    vals = cam[metric].to_numpy(dtype=float, na_value=np.nan)
+    assert line.max() == pytest.approx(np.nanmax(vals), rel=1e-5)
+    assert line.min() == pytest.approx(np.nanmin(vals), rel=1e-5)
+    assert main(["report", str(long), "-o", str(tmp_path / "long.html"), "-q"]) == 0
+    assert "so no spike is lost" in (tmp_path / "long.html").read_text()

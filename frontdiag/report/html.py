@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import base64
 import html
+import itertools
 import json
 import logging
 import math
@@ -34,6 +35,13 @@ log = logging.getLogger(__name__)
 SEVERITY_COLOR = {"fail": "#d62728", "warn": "#ff9f1c", "ok": "#2ca02c"}
 MAX_EPISODES = 12
 """Episodes shown with a thumbnail (worst first); the rest are listed in one table."""
+MAX_PLOT_POINTS = 4000
+"""Points per line of a plot: a longer series is drawn as the lowest and the highest value of
+each of MAX_PLOT_POINTS / 2 consecutive stretches, so a one-frame spike stays in the picture
+(a 30 Hz hour has 108 000 rows; drawn as they are, 24 plots of them stall the browser)."""
+MAX_LABELLED_SPANS = 40
+"""Shaded stretches that carry their condition's name on a plot; with more, the names would
+overlap into a smear, and the episode list below the plots names every one."""
 
 
 @dataclass
@@ -92,11 +100,69 @@ def plotted_metrics(table: pd.DataFrame, sensor: str, thresholds: Sequence[Thres
             and np.isfinite(rows[m].to_numpy(dtype=float, na_value=np.nan)).any()]
 
 
-def _series(rows: pd.DataFrame, metric: str) -> tuple[list[float], list[float | None]]:
-    t = rows["t_rel_s"].to_numpy(dtype=float)
+def envelope(v: np.ndarray, max_points: int = MAX_PLOT_POINTS) -> np.ndarray:
+    """Positions to draw of a series of ``len(v)`` values: all of them up to ``max_points``;
+    beyond, in each of ``max_points // 2`` consecutive stretches the lowest and the highest
+    finite value, in time order (a stretch with none keeps its first row, so a gap stays a
+    gap)."""
+    n = len(v)
+    if n <= max_points:
+        return np.arange(n)
+    edges = np.linspace(0, n, max_points // 2 + 1).astype(np.intp)
+    keep: list[int] = []
+    for a, b in itertools.pairwise(edges.tolist()):
+        part = v[a:b]
+        ok = np.isfinite(part)
+        if not ok.any():
+            keep.append(int(a))
+            continue
+        lo = int(np.argmin(np.where(ok, part, np.inf)))
+        hi = int(np.argmax(np.where(ok, part, -np.inf)))
+        keep.extend(sorted({a + lo, a + hi}))
+    return np.asarray(keep, dtype=np.intp)
+
+
+def _series(rows: pd.DataFrame, metric: str) -> tuple[list[float], list[float | None],
+                                                      np.ndarray]:
+    """Times, values (None where not finite) and the row positions drawn (:func:`envelope`)."""
     v = rows[metric].to_numpy(dtype=float, na_value=np.nan)
+    pos = envelope(v)
+    t = rows["t_rel_s"].to_numpy(dtype=float)[pos]
     return [round(float(x), 4) for x in t], [None if not math.isfinite(y) else float(f"{y:.6g}")
-                                            for y in v]
+                                            for y in v[pos]], pos
+
+
+def episode_spans(eps: pd.DataFrame, t0: float, t1: float, min_s: float = 0.05
+                  ) -> list[tuple[float, float, str, list[str]]]:
+    """The shaded stretches of a plot over ``t0``-``t1`` s: ``(x0, x1, severity, conditions)``.
+
+    An episode shorter than ``min_s`` is widened to it, so that one frame shows. Episodes of
+    one severity that overlap, or lie closer than a 2000th of the plot's width (under a pixel),
+    are one stretch: a long recording's hundreds of episodes are then as many shapes as the
+    picture can show, not one each (Plotly validates every shape anew as one is added)."""
+    join = max(t1 - t0, 0.0) / 2000
+    out: list[tuple[float, float, str, list[str]]] = []
+    for sev in dict.fromkeys(eps["severity"].astype(str)):
+        mine = eps[eps["severity"].astype(str) == sev]
+        x0s = mine["start_t_rel_s"].to_numpy(dtype=float)
+        x1s = mine["end_t_rel_s"].to_numpy(dtype=float)
+        short = x1s - x0s < min_s
+        x0s = np.where(short, x0s - min_s / 2, x0s)
+        x1s = np.where(short, x1s + min_s / 2, x1s)
+        conds = mine["condition"].astype(str).to_numpy()
+        cur: list[Any] | None = None
+        for i in np.argsort(x0s, kind="stable"):
+            if cur is not None and x0s[i] <= cur[1] + join:
+                cur[1] = max(cur[1], float(x1s[i]))
+                if conds[i] not in cur[3]:
+                    cur[3].append(str(conds[i]))
+                continue
+            if cur is not None:
+                out.append((cur[0], cur[1], cur[2], cur[3]))
+            cur = [float(x0s[i]), float(x1s[i]), sev, [str(conds[i])]]
+        if cur is not None:
+            out.append((cur[0], cur[1], cur[2], cur[3]))
+    return out
 
 
 def _line_label(value: float, ths: Sequence[Threshold]) -> str:
@@ -120,22 +186,26 @@ def metric_figure(run: RunData, baseline: RunData | None, sensor: str, topic: st
         b = baseline.table[(baseline.table["sensor"] == sensor)
                            & (baseline.table["topic"] == topic)]
         if metric in b.columns and len(b):
-            bt, bv = _series(b, metric)
+            bt, bv, _ = _series(b, metric)
             fig.add_trace(go.Scatter(x=bt, y=bv, mode="lines", name=baseline.label,
                                      line={"color": "#9aa0a6", "width": 1.2}))
-    t, v = _series(rows, metric)
+    t, v, pos = _series(rows, metric)
     fig.add_trace(go.Scatter(x=t, y=v, mode="lines", name=run.label,
                              line={"color": "#1f77b4", "width": 1.4},
-                             customdata=rows["frame"].tolist(),
+                             customdata=rows["frame"].to_numpy()[pos].tolist(),
                              hovertemplate="t %{x:.2f} s, frame %{customdata}<br>"
                                            f"{metric} %{{y:.4g}} {unit}<extra></extra>"))
     verdict = rows["verdict"].astype(str).to_numpy() if "verdict" in rows.columns else None
     if verdict is not None:
+        vals = rows[metric].to_numpy(dtype=float, na_value=np.nan)
+        times = rows["t_rel_s"].to_numpy(dtype=float)
         for sev in ("warn", "fail"):
-            sel = verdict == sev
-            if sel.any():
+            sel = np.flatnonzero(verdict == sev)
+            if sel.size:
+                sel = sel[envelope(vals[sel])]  # as the line: each stretch's extremes
                 fig.add_trace(go.Scatter(
-                    x=[t[i] for i in np.flatnonzero(sel)], y=[v[i] for i in np.flatnonzero(sel)],
+                    x=[round(float(x), 4) for x in times[sel]],
+                    y=[None if not math.isfinite(y) else float(f"{y:.6g}") for y in vals[sel]],
                     mode="markers", name=f"{sev} rows",
                     marker={"color": SEVERITY_COLOR[sev], "size": 4}, hoverinfo="skip"))
     lines: dict[float, list[Threshold]] = {}
@@ -156,16 +226,21 @@ def metric_figure(run: RunData, baseline: RunData | None, sensor: str, topic: st
     eps = run.verdicts.episodes if run.verdicts is not None else pd.DataFrame()
     if not eps.empty:
         mine = eps[(eps["sensor"] == sensor) & (eps["topic"] == topic)]
-        for _, e in mine.iterrows():
-            x0, x1 = float(e["start_t_rel_s"]), float(e["end_t_rel_s"])
-            if x1 - x0 < 0.05:
-                x0, x1 = x0 - 0.025, x1 + 0.025
-            fig.add_vrect(x0=x0, x1=x1, fillcolor=SEVERITY_COLOR.get(str(e["severity"]), "#999"),
-                          opacity=0.13, line_width=0, layer="below",
-                          annotation={"text": html.escape(str(e["condition"])),
-                                      "font": {"size": 9, "color": "#777"}, "textangle": -90,
-                                      "yanchor": "top"},
-                          annotation_position="top left")
+        all_t = rows["t_rel_s"].to_numpy(dtype=float)
+        spans = episode_spans(mine, float(all_t.min()), float(all_t.max())) \
+            if len(mine) and len(all_t) else []
+        # one layout update with every shape (add_vrect re-validates all shapes at each call:
+        # minutes for a few hundred episodes)
+        shapes = [{"type": "rect", "xref": "x", "yref": "y domain", "x0": x0, "x1": x1,
+                   "y0": 0, "y1": 1, "fillcolor": SEVERITY_COLOR.get(sev, "#999"),
+                   "opacity": 0.13, "line": {"width": 0}, "layer": "below"}
+                  for x0, x1, sev, _ in spans]
+        labels = [{"text": html.escape(" + ".join(conds)), "x": x0, "xref": "x", "y": 1,
+                   "yref": "y domain", "xanchor": "left", "yanchor": "top", "showarrow": False,
+                   "font": {"size": 9, "color": "#777"}, "textangle": -90}
+                  for x0, _, _, conds in spans] if len(spans) <= MAX_LABELLED_SPANS else []
+        fig.update_layout(shapes=[*fig.layout.shapes, *shapes],
+                          annotations=[*fig.layout.annotations, *labels])
     fig.update_layout(
         height=230, margin={"l": 60, "r": 20, "t": 34, "b": 34},
         title={"text": f"{metric} <span style='font-size:11px;color:#666'>"
@@ -371,8 +446,13 @@ def _plots_html(inp: ReportInputs) -> tuple[str, int]:
                                                 "displayModeBar": False})
                     + "</div>")
                 n += 1
+    longest = int(run.table.groupby(["sensor", "topic"]).size().max()) if len(run.table) else 0
     legend = ("<p class='meta'>Dashed lines: the rules' thresholds (red fail, amber warn). "
-              "Shaded: episodes. Dots: rows with a warn / fail verdict."
+              "Shaded: episodes (named where a plot has at most "
+              f"{MAX_LABELLED_SPANS}). Dots: rows with a warn / fail verdict."
+              + (f" A series longer than {MAX_PLOT_POINTS} rows is drawn as the lowest and "
+                 "highest value of each stretch of rows, so no spike is lost."
+                 if longest > MAX_PLOT_POINTS else "")
               + (" Grey: the baseline run." if inp.baseline is not None else "") + "</p>")
     return "<section id='metrics'><h2>Metrics over time</h2>" + legend + "".join(parts) \
         + "</section>", n
