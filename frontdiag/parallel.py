@@ -124,18 +124,30 @@ def frame_sized_malloc() -> bool:
     recording of 90 frames, benchmarks/bench_real.py's fleet). Where one of those variables is
     set, the thresholds are raised to what glibc's dynamic ones grow to on 64-bit Linux
     (mmap 32 MiB, trim 64 MiB: freed memory up to that is kept for the next frame rather than
-    returned); elsewhere glibc's own behaviour is left alone."""
+    returned), or kept where the environment set them higher still; elsewhere glibc's own
+    behaviour is left alone."""
     import os
     import sys
 
     if not sys.platform.startswith("linux") or not any(v in os.environ for v in _MALLOC_FIXED):
         return False
+
+    def env_bytes(name: str) -> int:
+        try:
+            return int(os.environ.get(name, "0"))
+        except ValueError:
+            return 0
+
+    # a trim threshold set higher (by someone who chose it) is kept; the mmap threshold goes
+    # to the ceiling of glibc's own dynamic one
+    mmap_at = FRAME_MMAP_THRESHOLD
+    trim_at = max(FRAME_TRIM_THRESHOLD, env_bytes("MALLOC_TRIM_THRESHOLD_"))
     import ctypes
 
     try:
         libc = ctypes.CDLL("libc.so.6")
-        return bool(libc.mallopt(M_MMAP_THRESHOLD, FRAME_MMAP_THRESHOLD)
-                    and libc.mallopt(M_TRIM_THRESHOLD, FRAME_TRIM_THRESHOLD))
+        return bool(libc.mallopt(M_MMAP_THRESHOLD, mmap_at)
+                    and libc.mallopt(M_TRIM_THRESHOLD, trim_at))
     except (OSError, AttributeError):  # not glibc (musl has no mallopt to speak of)
         return False
 
