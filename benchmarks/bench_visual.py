@@ -1,10 +1,13 @@
 """What the visual outputs cost on one recording: diagnostics.mcap, report.html, explain --png.
 
-    python benchmarks/bench_visual.py RECORDING [--out DIR]
+    python benchmarks/bench_visual.py RECORDING [--out DIR] [--long 100]
 
 Analyses RECORDING once (like `analyze --out DIR`) with the diagnostics writer timed from the
 inside, so the share of the run it takes is measured in the same run, then builds the report and
-one annotated frame. Prints sizes, times and the peak resident memory.
+one annotated frame. Prints sizes, times and the peak resident memory. With ``--long N`` the
+report is also built for the result repeated N times end to end (each copy 2 s after the last,
+as after a pause: its episodes its own), which is what a recording N times as long with as many
+episodes gives the report to draw.
 """
 
 from __future__ import annotations
@@ -25,6 +28,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("recording", type=Path)
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--long", type=int, default=0, metavar="N",
+                    help="also time the report of the result repeated N times")
     a = ap.parse_args()
     out = a.out or Path(tempfile.mkdtemp(prefix="bench_visual_"))
     out.mkdir(parents=True, exist_ok=True)
@@ -89,7 +94,46 @@ def main() -> None:
                                 verdict_lines(run.verdicts, pos)))
         (out / "frame.png").write_bytes(png)
         print(f"explain --png  {len(png) / 1e3:.0f} kB in {time.perf_counter() - t0:.2f} s")
+    if a.long > 1:
+        _long_report(out, a.long)
     print(f"results in {out}")
+
+
+def _long_report(out: Path, copies: int) -> None:
+    """The report of the result repeated ``copies`` times, each copy 2 s after the last."""
+    import shutil
+
+    import pandas as pd
+
+    from frontdiag.report.html import ReportInputs, build_html, load_run
+    from frontdiag.verdicts import gate
+
+    long = out / "long"
+    shutil.rmtree(long, ignore_errors=True)
+    long.mkdir()
+    for name in ("manifest.json", "rules.json"):
+        if (out / name).exists():
+            shutil.copy(out / name, long / name)
+    table = pd.read_parquet(out / "frames.parquet")
+    step_s = float(table["t_rel_s"].max()) + 2.0
+    n_frames = int(table["frame"].max()) + 1
+    parts = []
+    for i in range(copies):
+        t = table.copy()
+        t["frame"] += i * n_frames
+        t["t_ns"] += int(i * step_s * 1e9)
+        t["t_rel_s"] += i * step_s
+        if i:
+            t.loc[t.groupby("topic").head(1).index, "status"] = "after_gap"
+        parts.append(t)
+    pd.concat(parts, ignore_index=True).to_parquet(long / "frames.parquet")
+    t0 = time.perf_counter()
+    run = load_run(long)
+    page = build_html(ReportInputs(run, gate=gate(run.verdicts), thumbnails=False))
+    (long / "report.html").write_text(page, encoding="utf-8")
+    print(f"report.html x{copies}  {len(run.table)} rows, {len(run.verdicts.episodes)} episodes: "
+          f"{_mb(len(page.encode()))} in {time.perf_counter() - t0:.1f} s (thumbnails off: the "
+          "copies re-read the same frames)")
 
 
 if __name__ == "__main__":
