@@ -35,6 +35,7 @@ from frontdiag.errors import (
     RecordingError,
 )
 from frontdiag.io.readers import (
+    FLEET_SUMMARY_FILE,
     RESULT_NOT_RECORDING,
     is_result_dir,
     recording_files,
@@ -47,7 +48,7 @@ from frontdiag.io.readers import (
 
 log = logging.getLogger(__name__)
 
-SUMMARY_FILE = "fleet_summary.parquet"
+SUMMARY_FILE = FLEET_SUMMARY_FILE
 STAMP_FILE = "fleet.json"
 RECORDING_SUFFIXES = (".bag", ".mcap", ".db3")
 SUMMARY_COLUMNS = ["recording", "path", "status", "frames", "coverage", "ok", "warn", "fail",

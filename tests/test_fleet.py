@@ -379,3 +379,25 @@ def test_a_result_folder_is_not_taken_for_a_recording(
     assert discover([str(tmp_path / "*"), str(logs / "r1.mcap")], skipped) \
         == [(logs / "r1.mcap").resolve()]
     assert res in skipped
+    # a fleet's --out is named as a fleet's results
+    fleet_out = tmp_path / "fleet"
+    assert main(["analyze", str(logs / "r0.mcap"), str(logs / "r1.mcap"), "--out",
+                 str(fleet_out), "-q", "--fail-on", "never"]) == 0
+    capsys.readouterr()
+    assert main(["analyze", str(fleet_out)]) == 2
+    err = " ".join(capsys.readouterr().err.split())
+    assert "a fleet's results" in err and f"frontdiag report {fleet_out}" in err
+
+
+def test_a_fleet_written_into_its_own_folder_resumes(tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    # the folder of recordings holds the results too: it stays a folder of recordings
+    d = tmp_path / "runs"
+    d.mkdir()
+    for i in range(2):
+        write_recording(d / f"r{i}.mcap", "mcap", n=8, seed=i, shift=1 + i)
+    for _ in range(2):
+        assert main(["analyze", str(d), "--out", str(d), "-q", "--fail-on", "never"]) == 0
+    capsys.readouterr()
+    assert sorted(_summary(d)["recording"]) == ["r0", "r1"]
+    assert [p.name for p in discover([d])] == ["r0.mcap", "r1.mcap"]

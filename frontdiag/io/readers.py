@@ -626,19 +626,33 @@ def recording_size(path: Path) -> int:
 
 
 RESULT_NOT_RECORDING = "a frontdiag result folder (the --out of `frontdiag analyze`), not a recording"
+FLEET_SUMMARY_FILE = "fleet_summary.parquet"  # what a fleet run's --out holds (frontdiag.fleet)
 
 
 def is_result_dir(path: Path) -> bool:
-    """Whether ``path`` is what ``frontdiag analyze --out`` writes (its diagnostics.mcap would
-    otherwise read as a one-file bag folder)."""
-    return (path / "manifest.json").is_file() and not (path / "metadata.yaml").exists() \
-        and any((path / n).is_file() for n in ("frames.parquet", "frames.csv"))
+    """Whether ``path`` is what ``frontdiag analyze --out`` writes, for one recording (its
+    diagnostics.mcap would otherwise read as a one-file bag folder) or for a fleet."""
+    if (path / "metadata.yaml").exists():
+        return False
+    fleet = (path / FLEET_SUMMARY_FILE).is_file()
+    if not fleet and not ((path / "manifest.json").is_file()
+                          and any((path / n).is_file() for n in ("frames.parquet", "frames.csv"))):
+        return False
+    # results may be written into a folder of recordings (a fleet's --out the folder it
+    # reads): that folder stays a folder of recordings, its result folders passed over
+    return not any((c.is_file() and c.suffix in (".bag", ".mcap", ".db3")
+                    and c.name != "diagnostics.mcap")
+                   or (c.is_dir() and (c / "metadata.yaml").exists()) for c in path.iterdir())
 
 
 def result_dir_hint(path: Path) -> str:
     """What to run on a result folder, and the recording it was made from (its manifest's)."""
     import json
 
+    q = shlex.quote(str(path))
+    if (path / FLEET_SUMMARY_FILE).is_file():
+        return (f"a fleet's results: read them with `frontdiag report {q}` or `frontdiag eval "
+                f"{q}`, one recording's with `frontdiag explain {shlex.quote(str(path / 'NAME'))}`")
     rec = ""
     try:
         src = json.loads((path / "manifest.json").read_text()).get("input", {}).get("path")
@@ -646,7 +660,6 @@ def result_dir_hint(path: Path) -> str:
             rec = f"; analyse its recording again with `frontdiag analyze {shlex.quote(src)}`"
     except (OSError, ValueError, AttributeError):
         pass
-    q = shlex.quote(str(path))
     return (f"read it with `frontdiag explain {q}`, `frontdiag report {q}` or "
             f"`frontdiag eval {q}`{rec}")
 
