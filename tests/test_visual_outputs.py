@@ -231,14 +231,10 @@ def test_report_is_one_offline_html_with_every_plot(analysed: tuple[Path, Path],
 CHROMIUM = Path("/usr/bin/chromium")
 
 
-@pytest.mark.skipif(not CHROMIUM.exists(), reason="Debian's chromium is not installed")
-def test_report_renders_in_headless_chromium(analysed: tuple[Path, Path],
-                                             tmp_path: Path) -> None:
-    """No console error, no network request, every plot drawn; a screenshot is kept."""
+def _render(page_path: Path, shot: Path) -> tuple[list[str], list[str], list[int], int]:
+    """Console errors, requests beyond the file system, drawn marks per plot and the plot count
+    of ``page_path`` opened in headless Chromium; a screenshot is written to ``shot``."""
     pw = pytest.importorskip("playwright.sync_api")
-    _, out = analysed
-    page_path = tmp_path / "report.html"
-    assert main(["report", str(out), "-o", str(page_path), "-q"]) == 0
     errors: list[str] = []
     requests: list[str] = []
     with pw.sync_playwright() as p:
@@ -260,14 +256,51 @@ def test_report_renders_in_headless_chromium(analysed: tuple[Path, Path],
             drawn = page.evaluate("""() => [...document.querySelectorAll('.plotly-graph-div')]
                 .map(d => d.querySelectorAll('.scatterlayer path.js-line, .scatterlayer .point')
                 .length)""")
-            page.screenshot(path=str(tmp_path / "report.png"), full_page=False)
+            page.screenshot(path=str(shot), full_page=False)
         finally:
             browser.close()
+    return errors, requests, drawn, n
+
+
+@pytest.mark.skipif(not CHROMIUM.exists(), reason="Debian's chromium is not installed")
+def test_report_renders_in_headless_chromium(analysed: tuple[Path, Path],
+                                             tmp_path: Path) -> None:
+    """No console error, no network request, every plot drawn; a screenshot is kept."""
+    _, out = analysed
+    page_path = tmp_path / "report.html"
+    assert main(["report", str(out), "-o", str(page_path), "-q"]) == 0
+    errors, requests, drawn, n = _render(page_path, tmp_path / "report.png")
     assert errors == []
     assert requests == []
     assert len(drawn) == n >= 4
     assert all(k > 0 for k in drawn), drawn
     assert (tmp_path / "report.png").stat().st_size > 10_000
+
+
+@pytest.mark.skipif(not CHROMIUM.exists(), reason="Debian's chromium is not installed")
+def test_a_fleets_pages_share_one_plotly_and_render(analysed: tuple[Path, Path],
+                                                    tmp_path: Path) -> None:
+    """A fleet's report writes plotly.js once beside the recordings' folders; each page loads
+    it from there (no copy of its own, no network) and draws every plot."""
+    import shutil
+
+    rec, _ = analysed
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    for name in ("a.mcap", "b.mcap"):
+        shutil.copy(rec, logs / name)
+    fleet = tmp_path / "fleet"
+    assert main(["analyze", str(logs), "--out", str(fleet), "-q", "--fail-on", "never"]) == 0
+    assert main(["report", str(fleet), "-q"]) == 0
+    shared = fleet / "plotly.min.js"
+    assert shared.stat().st_size > 1_000_000
+    for name in ("a", "b"):
+        text = (fleet / name / "report.html").read_text()
+        assert "<script src='../plotly.min.js'></script>" in text
+        assert len(text) < shared.stat().st_size  # the page does not carry its own copy
+    errors, requests, drawn, n = _render(fleet / "a" / "report.html", tmp_path / "a.png")
+    assert errors == [] and requests == []
+    assert len(drawn) == n >= 4 and all(k > 0 for k in drawn), drawn
 
 
 def test_a_long_series_is_drawn_as_its_envelope() -> None:

@@ -29,7 +29,8 @@ Examples:
 
   frontdiag report new/ --baseline old/ -o regression.html     # overlay an earlier run
 
-  frontdiag report fleet/       # a fleet's --out: fleet/index.html and NAME/report.html each
+  frontdiag report fleet/       # a fleet's --out: fleet/index.html, NAME/report.html each
+                                # (sharing fleet/plotly.min.js: keep the folder whole)
 """
 
 
@@ -133,6 +134,13 @@ def _fleet_report(out_dir: Path, output: Path | None, fail_on: str, no_thumbnail
     summary = read_summary(out_dir)
     names = [str(n) for n in summary["recording"] if (out_dir / str(n) / "frames.parquet").is_file()]
     pages: dict[str, str] = {}
+    if names:  # one copy of plotly.js for every page of the fleet (NAME/report.html: one up)
+        from plotly.offline import get_plotlyjs
+
+        from frontdiag.report.html import PLOTLY_FILE
+
+        shared = out_dir / PLOTLY_FILE
+        guarded_write(shared, lambda: shared.write_text(get_plotlyjs(), encoding="utf-8"))
     with Progress(TextColumn("[bold]report[/] {task.description}"), BarColumn(),
                   MofNCompleteColumn(), TextColumn("recordings"),
                   console=make_console(stderr=True), transient=True, disable=quiet) as bar:
@@ -142,7 +150,9 @@ def _fleet_report(out_dir: Path, output: Path | None, fail_on: str, no_thumbnail
             inputs = ReportInputs(run, None, thumbnails=not no_thumbnails)
             inputs.gate = gate(run.verdicts, fail_on=fail_on)  # type: ignore[arg-type]
             page = out_dir / name / "report.html"
-            guarded_write(page, partial(page.write_text, build_html(inputs), encoding="utf-8"))
+            guarded_write(page, partial(page.write_text,
+                                        build_html(inputs, plotly_src=f"../{PLOTLY_FILE}"),
+                                        encoding="utf-8"))
             pages[name] = Path(os.path.relpath(page, index.parent)).as_posix()
             bar.advance(task)
     text = fleet_index_html(out_dir, summary, pages)

@@ -458,8 +458,14 @@ def _plots_html(inp: ReportInputs) -> tuple[str, int]:
         + "</section>", n
 
 
-def build_html(inp: ReportInputs) -> str:
-    """The whole page as one string."""
+PLOTLY_FILE = "plotly.min.js"
+"""A fleet's report writes plotly.js once, beside its recordings' folders (see build_html)."""
+
+
+def build_html(inp: ReportInputs, plotly_src: str | None = None) -> str:
+    """The whole page as one string, plotly.js inside it; or, with ``plotly_src``, loaded from
+    that relative path (a fleet's pages share one copy, 4.8 MB, in the fleet's folder, whose
+    index already links them by relative paths: the folder is read as a whole)."""
     from plotly.offline import get_plotlyjs
 
     from frontdiag import __version__
@@ -487,7 +493,9 @@ def build_html(inp: ReportInputs) -> str:
             "<meta name='viewport' content='width=device-width, initial-scale=1'>"
             f"<title>frontdiag report · {_e(name)}</title><style>{_CSS}</style>"
             f"<script type='application/json' id='frontdiag-meta'>{meta}</script>"
-            f"<script>{get_plotlyjs()}</script></head><body><main>{body}</main></body></html>")
+            + (f"<script src='{html.escape(plotly_src, quote=True)}'></script>" if plotly_src
+               else f"<script>{get_plotlyjs()}</script>")
+            + f"</head><body><main>{body}</main></body></html>")
 
 
 def fleet_index_html(out: Path, summary: pd.DataFrame, pages: dict[str, str]) -> str:
