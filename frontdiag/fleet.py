@@ -100,8 +100,11 @@ def discover(inputs: Iterable[str | Path], skipped: list[Path] | None = None) ->
                 continue
             if p.is_dir() and not (p / "metadata.yaml").exists() and not split_parts(p) \
                     and not ros2_parts(p):
+                # a result written into this folder leaves its diagnostics.mcap here: frontdiag's
+                # own output, with no sensor topic, is not a recording of the fleet
+                own = p / "diagnostics.mcap" if (p / "manifest.json").is_file() else None
                 found += sorted(c for c in p.iterdir()
-                                if (c.is_file() and c.suffix in RECORDING_SUFFIXES)
+                                if (c.is_file() and c.suffix in RECORDING_SUFFIXES and c != own)
                                 or (c.is_dir() and (c / "metadata.yaml").exists()))
             else:
                 found.append(p)

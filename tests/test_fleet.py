@@ -401,3 +401,8 @@ def test_a_fleet_written_into_its_own_folder_resumes(tmp_path: Path,
     capsys.readouterr()
     assert sorted(_summary(d)["recording"]) == ["r0", "r1"]
     assert [p.name for p in discover([d])] == ["r0.mcap", "r1.mcap"]
+    # one recording's result written into the same folder: its diagnostics.mcap is not one
+    assert main(["analyze", str(d / "r0.mcap"), "--out", str(d), "-q", "--fail-on", "never"]) == 0
+    capsys.readouterr()
+    assert (d / "diagnostics.mcap").is_file()
+    assert [p.name for p in discover([d])] == ["r0.mcap", "r1.mcap"]
