@@ -26,22 +26,16 @@ from typing import Any
 import pandas as pd
 
 from frontdiag import __version__
-from frontdiag.errors import (
-    EXIT_INTERNAL,
-    EXIT_INTERRUPTED,
-    EXIT_OK,
-    ConfigError,
-    FrontdiagError,
-    RecordingError,
-)
+from frontdiag.errors import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_OK, ConfigError, FrontdiagError
 from frontdiag.io.readers import (
     FLEET_SUMMARY_FILE,
-    RESULT_NOT_RECORDING,
+    RECORDING_SUFFIXES,
     is_result_dir,
     recording_files,
     recording_kind,
     recording_size,
-    result_dir_hint,
+    recordings_in,
+    refuse_result_dir,
     ros2_parts,
     split_parts,
 )
@@ -50,7 +44,6 @@ log = logging.getLogger(__name__)
 
 SUMMARY_FILE = FLEET_SUMMARY_FILE
 STAMP_FILE = "fleet.json"
-RECORDING_SUFFIXES = (".bag", ".mcap", ".db3")
 SUMMARY_COLUMNS = ["recording", "path", "status", "frames", "coverage", "ok", "warn", "fail",
                    "no_pose", "episodes", "gate", "exit_code", "seconds", "error"]
 
@@ -89,7 +82,7 @@ def discover(inputs: Iterable[str | Path], skipped: list[Path] | None = None) ->
         for p in paths:
             if p.is_dir() and is_result_dir(p):
                 if len(paths) == 1 and paths[0] == Path(text):  # named, not globbed
-                    raise RecordingError(p, RESULT_NOT_RECORDING, hint=result_dir_hint(p))
+                    refuse_result_dir(p)
                 if skipped is not None:
                     skipped.append(p)
                 continue
@@ -100,12 +93,7 @@ def discover(inputs: Iterable[str | Path], skipped: list[Path] | None = None) ->
                 continue
             if p.is_dir() and not (p / "metadata.yaml").exists() and not split_parts(p) \
                     and not ros2_parts(p):
-                # a result written into this folder leaves its diagnostics.mcap here: frontdiag's
-                # own output, with no sensor topic, is not a recording of the fleet
-                own = p / "diagnostics.mcap" if (p / "manifest.json").is_file() else None
-                found += sorted(c for c in p.iterdir()
-                                if (c.is_file() and c.suffix in RECORDING_SUFFIXES and c != own)
-                                or (c.is_dir() and (c / "metadata.yaml").exists()))
+                found += recordings_in(p)
             else:
                 found.append(p)
     out = list(dict.fromkeys(p.resolve() for p in found))

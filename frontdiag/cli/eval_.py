@@ -9,12 +9,12 @@ import typer
 
 from frontdiag.errors import EXIT_GATE, EXIT_OK, ConfigError
 
-_RECORDING_SUFFIXES = (".mcap", ".bag", ".db3")
-
 
 def _is_recording(p: Path) -> bool:
     if p.is_file():
-        return p.suffix.lower() in _RECORDING_SUFFIXES
+        from frontdiag.io.readers import RECORDING_SUFFIXES  # not at `--help` time
+
+        return p.suffix.lower() in RECORDING_SUFFIXES
     return p.is_dir() and (p / "metadata.yaml").is_file()
 
 

@@ -625,43 +625,56 @@ def recording_size(path: Path) -> int:
     return sum(f.stat().st_size for f in recording_files(path))
 
 
-RESULT_NOT_RECORDING = "a frontdiag result folder (the --out of `frontdiag analyze`), not a recording"
+RECORDING_SUFFIXES = (".bag", ".mcap", ".db3")
+DIAGNOSTICS_NAME = "diagnostics.mcap"  # what `analyze --out` writes beside its table
 FLEET_SUMMARY_FILE = "fleet_summary.parquet"  # what a fleet run's --out holds (frontdiag.fleet)
+
+
+def recordings_in(folder: Path) -> list[Path]:
+    """The recording files and bag folders directly in ``folder``, in name order; the
+    diagnostics.mcap of a result written into it (beside its manifest.json) is frontdiag's
+    own output, not a recording."""
+    own = folder / DIAGNOSTICS_NAME if (folder / "manifest.json").is_file() else None
+    return sorted(c for c in folder.iterdir()
+                  if (c.is_file() and c.suffix in RECORDING_SUFFIXES and c != own)
+                  or (c.is_dir() and (c / "metadata.yaml").exists()))
 
 
 def is_result_dir(path: Path) -> bool:
     """Whether ``path`` is what ``frontdiag analyze --out`` writes, for one recording (its
-    diagnostics.mcap would otherwise read as a one-file bag folder) or for a fleet."""
+    diagnostics.mcap would otherwise read as a one-file bag folder) or for a fleet, and holds
+    no recording of its own: results may be written into a folder of recordings (a fleet's
+    --out the folder it reads), which stays a folder of recordings."""
     if (path / "metadata.yaml").exists():
         return False
-    fleet = (path / FLEET_SUMMARY_FILE).is_file()
-    if not fleet and not ((path / "manifest.json").is_file()
-                          and any((path / n).is_file() for n in ("frames.parquet", "frames.csv"))):
-        return False
-    # results may be written into a folder of recordings (a fleet's --out the folder it
-    # reads): that folder stays a folder of recordings, its result folders passed over
-    return not any((c.is_file() and c.suffix in (".bag", ".mcap", ".db3")
-                    and c.name != "diagnostics.mcap")
-                   or (c.is_dir() and (c / "metadata.yaml").exists()) for c in path.iterdir())
+    one = (path / "manifest.json").is_file() \
+        and any((path / n).is_file() for n in ("frames.parquet", "frames.csv"))
+    return (one or (path / FLEET_SUMMARY_FILE).is_file()) and not recordings_in(path)
 
 
-def result_dir_hint(path: Path) -> str:
-    """What to run on a result folder, and the recording it was made from (its manifest's)."""
+def refuse_result_dir(path: Path) -> None:
+    """Raise where ``path`` is a result folder (:func:`is_result_dir`), naming the commands
+    that read it and the recording it was made from (its manifest's)."""
+    if not path.is_dir() or not is_result_dir(path):
+        return
     import json
 
     q = shlex.quote(str(path))
     if (path / FLEET_SUMMARY_FILE).is_file():
-        return (f"a fleet's results: read them with `frontdiag report {q}` or `frontdiag eval "
+        hint = (f"a fleet's results: read them with `frontdiag report {q}` or `frontdiag eval "
                 f"{q}`, one recording's with `frontdiag explain {shlex.quote(str(path / 'NAME'))}`")
-    rec = ""
-    try:
-        src = json.loads((path / "manifest.json").read_text()).get("input", {}).get("path")
-        if src:
-            rec = f"; analyse its recording again with `frontdiag analyze {shlex.quote(src)}`"
-    except (OSError, ValueError, AttributeError):
-        pass
-    return (f"read it with `frontdiag explain {q}`, `frontdiag report {q}` or "
-            f"`frontdiag eval {q}`{rec}")
+    else:
+        rec = ""
+        try:
+            src = json.loads((path / "manifest.json").read_text()).get("input", {}).get("path")
+            if src:
+                rec = f"; analyse its recording again with `frontdiag analyze {shlex.quote(src)}`"
+        except (OSError, ValueError, AttributeError):
+            pass
+        hint = (f"read it with `frontdiag explain {q}`, `frontdiag report {q}` or "
+                f"`frontdiag eval {q}`{rec}")
+    raise RecordingError(path, "a frontdiag result folder (the --out of `frontdiag analyze`), "
+                               "not a recording", hint=hint)
 
 
 def plan(path: Path) -> _Plan:
@@ -671,8 +684,7 @@ def plan(path: Path) -> _Plan:
                              hint="check the path; frontdiag reads .bag, .db3, .mcap files and "
                                   "ROS 2 bag folders")
     if path.is_dir():
-        if is_result_dir(path):
-            raise RecordingError(path, RESULT_NOT_RECORDING, hint=result_dir_hint(path))
+        refuse_result_dir(path)
         if (path / "metadata.yaml").exists():
             mcaps = sorted(path.glob("*.mcap"))
             if len(mcaps) == 1 and not list(path.glob("*.db3")):
@@ -726,25 +738,14 @@ def plan(path: Path) -> _Plan:
                                    "file?), not a recording frontdiag reads as it is",
                              hint="pass the bag folder with its metadata.yaml, or decompress "
                                   "it first (zstd -d FILE)")
+    from frontdiag.loops.graph import looks_like_graph  # only on this error's path
+
     hint = "frontdiag reads .bag, .db3, .mcap files and ROS 2 bag folders"
-    if _looks_like_pose_graph(path):
+    if looks_like_graph(path):
         hint = f"it reads as a pose graph (g2o or TORO): audit its loop closures with " \
                f"`frontdiag loops {shlex.quote(str(path))}`"
     raise RecordingError(path, "unknown container (not MCAP, ROS 1 bag v2.0 or sqlite3)",
                          hint=hint)
-
-
-def _looks_like_pose_graph(path: Path) -> bool:
-    """Whether the file starts like a g2o or TORO graph (a VERTEX or EDGE tag on its first
-    lines)."""
-    try:
-        with path.open("rb") as fh:
-            head = fh.read(4096)
-    except OSError:
-        return False
-    tags = (b"VERTEX_SE2", b"VERTEX_SE3", b"EDGE_SE2", b"EDGE_SE3", b"VERTEX2", b"EDGE2")
-    return any(line.split(maxsplit=1)[:1] and line.split(maxsplit=1)[0] in tags
-               for line in head.splitlines()[:20])
 
 
 def bag_compression(metadata: Path) -> tuple[str, str]:

@@ -42,6 +42,19 @@ _EDGE = {"EDGE_SE2": 2, "EDGE2": 2, "EDGE_SE3:QUAT": 3}
 _IGNORED = {"FIX", "VERTEX_XY", "EDGE_SE2_XY", "ROBOTLASER1", "PARAMS_SE2OFFSET"}
 
 
+def looks_like_graph(path: Path) -> bool:
+    """Whether the file starts like a pose graph this module reads: a vertex or edge tag
+    opening one of its first 20 lines (for the hint of a reader that was given one)."""
+    try:
+        with Path(path).open("rb") as fh:
+            head = fh.read(4096).decode("ascii", "replace")
+    except OSError:
+        return False
+    tags = _VERTEX.keys() | _EDGE.keys()
+    return any(line.split(maxsplit=1)[:1] and line.split(maxsplit=1)[0] in tags
+               for line in head.splitlines()[:20])
+
+
 class GraphError(RecordingError):
     """A pose-graph file that cannot be read as asked (exit 2, one line naming the edge)."""
 

@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from frontdiag.io.readers import DIAGNOSTICS_NAME
 from frontdiag.metrics import METRICS
 from frontdiag.records import (
     KP_INLIER,
@@ -54,7 +55,7 @@ from frontdiag.records import (
 
 log = logging.getLogger(__name__)
 
-DIAGNOSTICS_FILE = "diagnostics.mcap"
+DIAGNOSTICS_FILE = DIAGNOSTICS_NAME
 
 TOPIC_DIAGNOSTICS = "/diagnostics"
 TOPIC_METRICS = "/frontdiag/{sensor}/metrics"
