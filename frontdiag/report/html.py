@@ -122,14 +122,18 @@ def envelope(v: np.ndarray, max_points: int = MAX_PLOT_POINTS) -> np.ndarray:
     return np.asarray(keep, dtype=np.intp)
 
 
+def _points(t: np.ndarray, v: np.ndarray) -> tuple[list[float], list[float | None]]:
+    """Plot coordinates: times to 0.1 ms, values to 6 digits (None where not finite)."""
+    return [round(float(x), 4) for x in t], [None if not math.isfinite(y) else float(f"{y:.6g}")
+                                            for y in v]
+
+
 def _series(rows: pd.DataFrame, metric: str) -> tuple[list[float], list[float | None],
                                                       np.ndarray]:
     """Times, values (None where not finite) and the row positions drawn (:func:`envelope`)."""
     v = rows[metric].to_numpy(dtype=float, na_value=np.nan)
     pos = envelope(v)
-    t = rows["t_rel_s"].to_numpy(dtype=float)[pos]
-    return [round(float(x), 4) for x in t], [None if not math.isfinite(y) else float(f"{y:.6g}")
-                                            for y in v[pos]], pos
+    return (*_points(rows["t_rel_s"].to_numpy(dtype=float)[pos], v[pos]), pos)
 
 
 def episode_spans(eps: pd.DataFrame, t0: float, t1: float, min_s: float = 0.05
@@ -203,10 +207,9 @@ def metric_figure(run: RunData, baseline: RunData | None, sensor: str, topic: st
             sel = np.flatnonzero(verdict == sev)
             if sel.size:
                 sel = sel[envelope(vals[sel])]  # as the line: each stretch's extremes
+                xs, ys = _points(times[sel], vals[sel])
                 fig.add_trace(go.Scatter(
-                    x=[round(float(x), 4) for x in times[sel]],
-                    y=[None if not math.isfinite(y) else float(f"{y:.6g}") for y in vals[sel]],
-                    mode="markers", name=f"{sev} rows",
+                    x=xs, y=ys, mode="markers", name=f"{sev} rows",
                     marker={"color": SEVERITY_COLOR[sev], "size": 4}, hoverinfo="skip"))
     lines: dict[float, list[Threshold]] = {}
     for th in thresholds:
