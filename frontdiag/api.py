@@ -206,7 +206,9 @@ def first_image_size(rec: Recording, choice: TopicChoice, downscale: int = 1
                      ) -> tuple[int, int] | None:
     """(width, height) of the camera topic's first image as the frontend sees it (shrunk by
     ``downscale``; of a video topic, its first picture, within VIDEO_KEYFRAME_SEARCH messages),
-    or None when it cannot be read (the run then reports that frame itself)."""
+    or None when it cannot be read (the run then reports that frame itself). A raw image whose
+    header gives no size (a zero width or height: a damaged or unset message) says nothing
+    of the camera's; the next ones, within the same search, are read instead."""
     from frontdiag.io.images import GrayConverter, shrunk_size
 
     assert choice.camera is not None
@@ -217,7 +219,11 @@ def first_image_size(rec: Recording, choice: TopicChoice, downscale: int = 1
             msg = rec.deserialize(raw)
             video = is_video_message(msg, raw.msgtype)
             if not video and hasattr(msg, "width") and hasattr(msg, "height"):
-                return shrunk_size(int(msg.width), int(msg.height), downscale)
+                if int(msg.width) > 0 and int(msg.height) > 0:
+                    return shrunk_size(int(msg.width), int(msg.height), downscale)
+                if i + 1 >= VIDEO_KEYFRAME_SEARCH:
+                    return None
+                continue
             gray, _ = conv(msg, raw.msgtype)
             return int(gray.shape[1]), int(gray.shape[0])
         except Exception:

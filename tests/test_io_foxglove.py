@@ -425,3 +425,26 @@ def test_h264_in_a_compressed_image_topic(tmp_path: Path, fmt: str) -> None:
     assert late.equals(df.set_index("frame")["mean_intensity"].loc[late.index])
     video = next(t for t in inspect_recording(path).topics if t.topic == "/cam/image/ffmpeg")
     assert video.detail == "video h264, keyframe every 10 msgs"
+
+
+def test_a_picture_and_a_calibration_giving_no_size_are_passed_over(tmp_path: Path) -> None:
+    """A damaged first picture whose header says height 0, and a calibration message saying the
+    same, are not the camera's size: the size comes from the next picture, the calibration
+    from a message that gives one (this raised ZeroDivisionError, exit 3)."""
+    n = 9
+    frames = [frame(i) for i in range(n)]
+
+    def items() -> Iterator[tuple[str, str, int, dict[str, Any]]]:
+        for k, (topic, schema, t, fields) in enumerate(
+                camera_items(frames, K, T0, DT, kind="RawImage")):
+            if k in (0, 9):  # the first picture, the fifth calibration
+                fields = {**fields, "height": 0}
+            yield topic, schema, t, fields
+
+    path = write_json(tmp_path / "zero.mcap", items())
+    res = run_analysis(path, AnalysisOptions())
+    assert res.fault is None
+    assert len(res.table) == n - 1  # the picture of height 0 cannot be decoded
+    assert res.table["h_over_e"].notna().sum() >= n - 3  # K was read: geometry ran
+    notes = " ".join(res.table.attrs["manifest"].get("notes", []))
+    assert "scaled" not in notes  # nothing was fitted to a size of 0

@@ -253,6 +253,8 @@ def fit_to_images(intr: Intrinsics, size: tuple[int, int] | None,
     """
     if size is None or (size[0], size[1]) == (intr.width, intr.height):
         return intr
+    if intr.width <= 0 or intr.height <= 0:  # a calibration that gives no size: taken as is
+        return intr
     w, h = size
     sx, sy = w / intr.width, h / intr.height
     if abs(sx - sy) > 0.01 * max(sx, sy):
@@ -320,8 +322,8 @@ class CalibrationsBySize:
                                                 rectified=self.rectified)
                     except Exception:  # unusable: the next one may be
                         continue
-                    if intr is not None and shrunk_size(intr.width, intr.height,
-                                                        self.downscale) == (w, h):
+                    if intr is not None and intr.width > 0 and intr.height > 0 and \
+                            shrunk_size(intr.width, intr.height, self.downscale) == (w, h):
                         return intr, i + 1
         except (FrontdiagError, OSError):
             return None
