@@ -30,12 +30,21 @@ anything runs, so that the audit, GNC and the ATE maps all solve the same graph.
 
 GNC needs the loops-opt extra (GTSAM); without it the GNC columns are empty. Times on a shared
 machine are noisy: compare the ratio, measured in the same run.
+
+``--solver-ab`` audits every configuration a second time with the sparse factorisation forced
+to QDLDL (FRONTDIAG_LOOPS_SOLVER=qdldl) and prints, under the row, that audit's time, the ratio
+to the first (the backend ``auto`` picked: CHOLMOD for 3D graphs where cvxopt is installed)
+and whether every verdict, rule and reason is the same:
+
+    python benchmarks/bench_loops.py --graphs sphere2500,parking-garage --kinds random,grouped \
+        --fractions 0.1 --gnc none --solver-ab
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import time
 from pathlib import Path
 
@@ -47,7 +56,7 @@ from frontdiag.loops.init import chordal_init
 from frontdiag.loops.inject import KINDS, inject_false_loops
 from frontdiag.loops.optimize import ate, gtsam_problem
 from frontdiag.loops.rules import load_loop_rules
-from frontdiag.loops.solve import solve
+from frontdiag.loops.solve import SOLVER_ENV, solve, solver_label
 from frontdiag.loops.stiffness import cap_information, find_overconfident
 
 HERE = Path(__file__).resolve().parent
@@ -68,6 +77,25 @@ def gnc(graph, odo, init):  # type: ignore[no-untyped-def]
     return secs, w >= 0.5
 
 
+def _solver_ab(g, res, secs):  # type: ignore[no-untyped-def]
+    """The same audit with the factorisation forced to QDLDL: its time and whether its table's
+    verdicts, rules and reasons equal those of ``res``."""
+    before = os.environ.get(SOLVER_ENV)
+    os.environ[SOLVER_ENV] = "qdldl"
+    try:
+        t0 = time.perf_counter()
+        ref = audit(g)
+        ref_s = time.perf_counter() - t0
+    finally:
+        if before is None:
+            del os.environ[SOLVER_ENV]
+        else:
+            os.environ[SOLVER_ENV] = before
+    a, b = res.table, ref.table
+    same = all(list(a[c]) == list(b[c]) for c in ("verdict", "rule", "reason"))
+    return {"solver": solver_label(g.k), "qdldl_s": ref_s, "same": same}
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=HERE / "data" / "loops")
@@ -78,6 +106,8 @@ def main() -> int:
                     help="GNC on the first configuration of each graph, on all, or none")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--json", type=Path, default=None, help="also write the rows as JSON")
+    ap.add_argument("--solver-ab", action="store_true",
+                    help="also audit each configuration with QDLDL forced and compare")
     args = ap.parse_args()
     manifest = json.loads((HERE / "loops_data.json").read_text())["graphs"]
     want = {s for s in args.graphs.split(",") if s}
@@ -169,12 +199,19 @@ def main() -> int:
                     row.update({"gnc_s": gs, "gnc_recall": grec, "gnc_retention": gret,
                                 "speedup": ratio})
                 first = False
+                if args.solver_ab:
+                    row.update(_solver_ab(g, res, secs))
                 rows.append(row)
                 print(f"{entry['name']:<15}{kind:<9}{frac * 100:>6.0f}%{row['n_false']:>8}"
                       f"{recall:>8.3f}{retain:>8.3f}{retain_self:>9.3f}{a_kept:>9.3f}{a_all:>9.2f}{fold_at:>8.3f}"
                       f"{'YES' if row['folded'] else 'no':>7}{a_self:>8.3f}{secs:>9.1f}{gs:>8.1f}"
                       f"{grec:>8.3f}"
                       f"{gret:>8.3f}{ratio:>6.1f}", flush=True)
+                if args.solver_ab:
+                    print(f"{'':<15}factorisation {row['solver']}: {secs:.1f} s; QDLDL "
+                          f"{row['qdldl_s']:.1f} s ({row['qdldl_s'] / secs:.2f}x); verdicts, "
+                          f"rules and reasons {'the same' if row['same'] else 'DIFFER'}",
+                          flush=True)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1) + "\n")
     return 0

@@ -13,7 +13,7 @@ from frontdiag import __version__
 
 # distribution names in the order they are printed, after OpenCV
 _DISTRIBUTIONS = ("numpy", "small-gicp", "rosbags", "mcap", "pandas",
-                  "pyarrow", "faiss-cpu", "scipy", "typer", "rich")
+                  "pyarrow", "faiss-cpu", "scipy", "qdldl", "cvxopt", "typer", "rich")
 
 
 def versions() -> dict[str, str]:

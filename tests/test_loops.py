@@ -1480,3 +1480,105 @@ def test_solve_converges_in_few_iterations_on_a_long_chain() -> None:
     assert st["converged"] == 1.0
     assert st["iterations"] <= 20
     assert st["cost"] == pytest.approx(tight["cost"], rel=1e-8)
+
+
+def _lying_graph(dim: int, seed: int) -> object:
+    """An exact graph of 80 poses and 20 loops measured to about 1 cm and 0.01 rad (information
+    10⁴), with three of its loops turned into lies of 2 m and 0.5 rad."""
+    from frontdiag.loops import lie
+
+    g, _ = _exact_graph(dim, 80, seed=seed, loops=20)
+    rng = np.random.default_rng(seed + 20)
+    g.info[:] = 1e4 * np.eye(g.k)
+    g.Z[:] = g.Z @ lie.exp(rng.normal(0, 0.01, (g.n_edges, g.k)), dim)
+    loops = np.arange(g.n_vertices - 1, g.n_edges)
+    lie_xi = np.zeros((3, g.k))
+    lie_xi[:, 0], lie_xi[:, -1] = 2.0, 0.5
+    g.Z[loops[:3]] = g.Z[loops[:3]] @ lie.exp(lie_xi, dim)
+    return g
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_the_two_factorisations_solve_the_normal_equations_alike(dim: int, monkeypatch) -> None:
+    """QDLDL and CHOLMOD (cvxopt) factorise the same normal matrix: one and 64 right-hand
+    sides, and a refactorisation of new values on the same pattern, equal the dense solution."""
+    pytest.importorskip("cvxopt")
+    from frontdiag.loops import solve as S
+
+    g = _lying_graph(dim, seed=4)
+    U = S._chol_upper(g.info)
+    n = g.n_vertices
+    P = np.tile(np.eye(dim + 1), (n, 1, 1))
+    lin = S.linearise(P, g.src, g.dst, g.Z, U, n)
+    H, grad = S.normal_equations(lin, g.src, g.dst, n, 1e-3)
+    Hd = H.toarray()
+    Hd = Hd + np.triu(Hd, 1).T
+    B = np.random.default_rng(0).standard_normal((H.shape[0], 64))
+    lin2 = S.linearise(P @ S.lie.exp(np.full((n, g.k), 0.01), dim), g.src, g.dst, g.Z, U, n)
+    H2, _ = S.normal_equations(lin2, g.src, g.dst, n, 1e-3)
+    H2d = H2.toarray()
+    H2d = H2d + np.triu(H2d, 1).T
+    for backend in ("qdldl", "cholmod"):
+        monkeypatch.setenv(S.SOLVER_ENV, backend)
+        f = S.Factor(H, g.k)
+        assert f.backend == backend
+        np.testing.assert_allclose(f.solve(grad), np.linalg.solve(Hd, grad), rtol=1e-8)
+        np.testing.assert_allclose(f.solve(B), np.linalg.solve(Hd, B), rtol=1e-8, atol=1e-12)
+        f.update(H2)
+        np.testing.assert_allclose(f.solve(B), np.linalg.solve(H2d, B), rtol=1e-8, atol=1e-12)
+
+
+def test_a_3d_audit_is_the_same_with_either_factorisation(monkeypatch) -> None:
+    """The audit picks CHOLMOD for 3D graphs where cvxopt is installed; forced to QDLDL the
+    same graph gets the same verdicts, reasons and figures (to 1e-8 of themselves)."""
+    pytest.importorskip("cvxopt")
+    from frontdiag.loops import solve as S
+    from frontdiag.loops.audit import summary
+
+    g = _lying_graph(3, seed=5)
+    monkeypatch.delenv(S.SOLVER_ENV, raising=False)
+    fast = audit(g)
+    assert summary(fast)["sparse_solver"].startswith("CHOLMOD")
+    assert (fast.table["verdict"] == "fail").sum() >= 3  # the lies are found either way
+    monkeypatch.setenv(S.SOLVER_ENV, "qdldl")
+    slow = audit(g)
+    assert summary(slow)["sparse_solver"].startswith("QDLDL")
+    a, b = fast.table, slow.table
+    assert list(a["verdict"]) == list(b["verdict"])
+    assert list(a["reason"]) == list(b["reason"])
+    for col in ("chi2", "map_chi2", "map_p", "map_residual_m", "map_sigma_m"):
+        np.testing.assert_allclose(a[col].to_numpy(float), b[col].to_numpy(float),
+                                   rtol=1e-8, atol=1e-12, err_msg=col)
+
+
+def test_the_factorisation_choice_is_said_and_checked(monkeypatch) -> None:
+    """auto: CHOLMOD for 3D (k = 6) only where cvxopt imports, QDLDL for 2D; a bad value of
+    FRONTDIAG_LOOPS_SOLVER, or cholmod without cvxopt, is refused saying what to do; a matrix
+    Cholesky cannot factorise (a part no edge anchors) is left to LDLᵀ, as before."""
+    import scipy.sparse as sp
+
+    from frontdiag.errors import ConfigError, OptionalDependencyError
+    from frontdiag.loops import solve as S
+
+    monkeypatch.delenv(S.SOLVER_ENV, raising=False)
+    assert S.sparse_backend(3) == "qdldl"
+    monkeypatch.setattr(S, "cholmod_available", lambda: False)
+    assert S.sparse_backend(6) == "qdldl"
+    monkeypatch.setenv(S.SOLVER_ENV, "cholmod")
+    with pytest.raises(OptionalDependencyError, match="needs cvxopt") as missing:
+        S.sparse_backend(3)
+    assert "frontdiag[loops-fast]" in str(missing.value.hint)
+    monkeypatch.setenv(S.SOLVER_ENV, "superlu")
+    with pytest.raises(ConfigError, match="auto, qdldl, cholmod"):
+        S.sparse_backend(6)
+    monkeypatch.undo()
+    pytest.importorskip("cvxopt")
+    monkeypatch.delenv(S.SOLVER_ENV, raising=False)
+    assert S.sparse_backend(6) == "cholmod"
+    singular = sp.csc_matrix(np.diag([1.0, -1e-18, 2.0]))  # a pivot zero to rounding
+    f = S.Factor(singular, 6)
+    assert f.backend == "qdldl"
+    f2 = S.Factor(sp.csc_matrix(np.diag([1.0, 3.0, 2.0])), 6)
+    assert f2.backend == "cholmod"
+    f2.update(singular)
+    assert f2.backend == "qdldl"

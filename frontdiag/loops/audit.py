@@ -29,6 +29,7 @@ from frontdiag.loops import pcm
 from frontdiag.loops.chain import Chain, build_chain
 from frontdiag.loops.graph import GraphError, PoseGraph
 from frontdiag.loops.rules import LoopRules, load_loop_rules
+from frontdiag.loops.solve import solver_label
 from frontdiag.loops.stats import LoopStats, loop_stats
 from frontdiag.loops.stiffness import (
     AXES,
@@ -359,6 +360,7 @@ def summary(result: LoopAudit, top: int = 10) -> dict[str, Any]:
         "link_stiffness_m2": result.stats.link_stiffness,
         "overconfident_edges": _overconfident_rows(result, top),
         "timings_s": result.timings,
+        "sparse_solver": solver_label(result.graph.k),
         "notes": result.graph.notes + result.notes,
         "worst": flagged.head(top)[cols].to_dict(orient="records"),
     }

@@ -61,7 +61,7 @@ def chordal_init(graph: PoseGraph, edges: NDArray[np.bool_], fallback: F) -> F:
     # rotations, row by row: the r-th rows x of R satisfy x_j = R_ijᵀ x_i
     prior = _ANCHOR * float(w_rot.max())
     H = _normal_matrix(n, d, src, dst, w_rot, np.swapaxes(R_ij, -1, -2), anchors, prior)
-    fac = Factor(H)
+    fac = Factor(H, graph.k)
     X = np.empty((n, d, d))
     for r in range(d):
         b = np.zeros((n, d))
@@ -80,7 +80,7 @@ def chordal_init(graph: PoseGraph, edges: NDArray[np.bool_], fallback: F) -> F:
     np.add.at(g, dst, step)
     np.add.at(g, src, -step)
     g[anchors] += prior * fallback[anchors, :d, d]
-    t = Factor(Ht).solve(g.ravel()).reshape(n, d)
+    t = Factor(Ht, graph.k).solve(g.ravel()).reshape(n, d)
     P = np.zeros((n, d + 1, d + 1))
     P[:, :d, :d] = R
     P[:, :d, d] = t

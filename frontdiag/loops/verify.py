@@ -161,7 +161,7 @@ def map_system(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
         structure.factor.update(H)  # the solve is over: its factor is ours
         return MapSystem(lin_all, sel, lin, structure.factor)
     H, _ = normal_equations(lin, g.src[sel], g.dst[sel], n, 0.0)
-    return MapSystem(lin_all, sel, lin, Factor(H))
+    return MapSystem(lin_all, sel, lin, Factor(H, k))
 
 
 def map_test(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
