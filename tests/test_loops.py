@@ -1526,6 +1526,8 @@ def test_the_two_factorisations_solve_the_normal_equations_alike(dim: int, monke
         np.testing.assert_allclose(f.solve(B), np.linalg.solve(Hd, B), rtol=1e-8, atol=1e-12)
         f.update(H2)
         np.testing.assert_allclose(f.solve(B), np.linalg.solve(H2d, B), rtol=1e-8, atol=1e-12)
+        if backend == "cholmod":  # the new values went into the same matrix, not a new one
+            assert f._impl._in_place
 
 
 def test_a_3d_audit_is_the_same_with_either_factorisation(monkeypatch) -> None:

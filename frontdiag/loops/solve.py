@@ -18,6 +18,7 @@ import importlib.util
 import logging
 import os
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import scipy.sparse as sp
@@ -258,28 +259,33 @@ class _Cholmod:
     on parking-garage, as long as the factorisation)."""
 
     def __init__(self, T: sp.csc_matrix) -> None:
-        from cvxopt import cholmod, spmatrix
+        from cvxopt import cholmod
 
         cholmod.options["supernodal"] = 2  # always supernodal (its auto rule picks by flops)
         self._n = T.shape[0]
-        cols = np.repeat(np.arange(T.shape[1]), np.diff(T.indptr))
-        self._A = spmatrix(np.ascontiguousarray(T.data, dtype=float),
-                           T.indices.astype(np.int64), cols.astype(np.int64), T.shape)
+        self._A = self._spmatrix(T)
         # the values go in place only where cvxopt kept every entry in the triangle's order
         self._in_place = np.array_equal(np.asarray(self._A.I).ravel(), T.indices)
         self._F = cholmod.symbolic(self._A, uplo="U")
         cholmod.numeric(self._A, self._F)  # ArithmeticError where not definite
 
     def update(self, T: sp.csc_matrix) -> None:
-        from cvxopt import cholmod, matrix, spmatrix
+        from cvxopt import cholmod, matrix
 
         if self._in_place:
             self._A.V = matrix(np.ascontiguousarray(T.data, dtype=float))
         else:
-            cols = np.repeat(np.arange(T.shape[1]), np.diff(T.indptr))
-            self._A = spmatrix(np.ascontiguousarray(T.data, dtype=float),
-                               T.indices.astype(np.int64), cols.astype(np.int64), T.shape)
+            self._A = self._spmatrix(T)
         cholmod.numeric(self._A, self._F)  # ArithmeticError where not definite
+
+    @staticmethod
+    def _spmatrix(T: sp.csc_matrix) -> Any:
+        """cvxopt's sparse matrix of the CSC triangle, from its triplets."""
+        from cvxopt import spmatrix
+
+        cols = np.repeat(np.arange(T.shape[1]), np.diff(T.indptr))
+        return spmatrix(np.ascontiguousarray(T.data, dtype=float), T.indices.astype(np.int64),
+                        cols.astype(np.int64), T.shape)
 
     def solve(self, b: F) -> F:
         from cvxopt import cholmod, matrix
