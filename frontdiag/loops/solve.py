@@ -202,7 +202,8 @@ def cholmod_available() -> bool:
 
 
 def sparse_backend(k: int | None) -> str:
-    """The factorisation for normal matrices of k x k blocks: ``qdldl`` or ``cholmod``.
+    """The factorisation for the normal matrices of a graph of tangent dimension k (3 in 2D,
+    6 in 3D): ``qdldl`` or ``cholmod``.
 
     ``auto`` takes CHOLMOD's supernodal Cholesky for 3D graphs (k = 6) where cvxopt is
     installed, QDLDL otherwise. QDLDL is a simplicial LDLᵀ: entry by entry, no dense kernels.
@@ -299,7 +300,8 @@ class _Cholmod:
 class Factor:
     """A factorisation of a symmetric positive definite matrix (QDLDL or CHOLMOD, see
     :func:`sparse_backend`); ``update`` refactorises new values on the same pattern without
-    ordering it again. ``k``: the block size, which picks the backend."""
+    ordering it again. ``k``: the graph's tangent dimension, which picks the backend (the
+    chordal start's matrices have blocks of 2 or 3 and follow their graph's choice)."""
 
     def __init__(self, H: sp.csc_matrix, k: int | None = None) -> None:
         T = _upper(H)
@@ -313,9 +315,14 @@ class Factor:
             try:
                 return _Cholmod(T)
             except ArithmeticError:
-                # Cholesky needs a definite matrix; LDLᵀ carries on through a pivot that is
-                # zero to rounding (a part of the graph the gauge does not reach), as before
-                self.backend = "qdldl"
+                return self._to_ldlt(T)
+        return _Qdldl(T)
+
+    def _to_ldlt(self, T: sp.csc_matrix) -> _Qdldl:
+        """Cholesky needs a definite matrix; LDLᵀ carries on through a pivot that is zero to
+        rounding (a part of the graph the gauge does not reach), as it did before CHOLMOD."""
+        log.info("CHOLMOD refused a matrix that is not definite; QDLDL factorises it")
+        self.backend = "qdldl"
         return _Qdldl(T)
 
     def update(self, H: sp.csc_matrix) -> None:
@@ -326,8 +333,7 @@ class Factor:
             try:
                 self._impl.update(T)
             except ArithmeticError:
-                self.backend = "qdldl"
-                self._impl = _Qdldl(T)
+                self._impl = self._to_ldlt(T)
         else:
             self.__init__(H, self.k)  # type: ignore[misc]
 
