@@ -1578,9 +1578,43 @@ def test_the_factorisation_choice_is_said_and_checked(monkeypatch) -> None:
     monkeypatch.delenv(S.SOLVER_ENV, raising=False)
     assert S.sparse_backend(6) == "cholmod"
     singular = sp.csc_matrix(np.diag([1.0, -1e-18, 2.0]))  # a pivot zero to rounding
+    before = S.ldlt_fallbacks()
     f = S.Factor(singular, 6)
     assert f.backend == "qdldl"
     f2 = S.Factor(sp.csc_matrix(np.diag([1.0, 3.0, 2.0])), 6)
     assert f2.backend == "cholmod"
+    assert S.ldlt_fallbacks() == before + 1
     f2.update(singular)
     assert f2.backend == "qdldl"
+    assert S.ldlt_fallbacks() == before + 2
+    assert S.solver_label(6) == "CHOLMOD (supernodal Cholesky, cvxopt)"
+    assert S.solver_label(6, 1).endswith("QDLDL on 1 matrix that Cholesky refused as not definite")
+    assert "QDLDL on 2 matrices" in S.solver_label(6, 2)
+
+
+def test_an_audit_says_when_cholmod_refused_its_matrices(monkeypatch) -> None:
+    """Where Cholesky refuses the audit's matrices and QDLDL factorises them, the summary's
+    sparse_solver says so and how many, and the table is the one QDLDL gives alone."""
+    pytest.importorskip("cvxopt")
+    from frontdiag.loops import solve as S
+    from frontdiag.loops.audit import summary
+
+    g = _lying_graph(3, seed=5)
+    monkeypatch.setenv(S.SOLVER_ENV, "qdldl")
+    alone = audit(g)
+    monkeypatch.delenv(S.SOLVER_ENV)
+
+    class Refusing:
+        def __init__(self, T: object) -> None:
+            raise ArithmeticError("not definite")
+
+    monkeypatch.setattr(S, "_Cholmod", Refusing)
+    res = audit(g)
+    said = summary(res)["sparse_solver"]
+    assert said.startswith("CHOLMOD") and "Cholesky refused" in said
+    n = int(said.split("QDLDL on ")[1].split()[0])
+    assert n >= 3  # the chordal start (rotations, translations) and a map solve, at least
+    assert list(res.table["verdict"]) == list(alone.table["verdict"])
+    assert list(res.table["reason"]) == list(alone.table["reason"])
+    monkeypatch.undo()
+    assert "refused" not in summary(audit(g))["sparse_solver"]

@@ -29,7 +29,7 @@ from frontdiag.loops import pcm
 from frontdiag.loops.chain import Chain, build_chain
 from frontdiag.loops.graph import GraphError, PoseGraph
 from frontdiag.loops.rules import LoopRules, load_loop_rules
-from frontdiag.loops.solve import solver_label
+from frontdiag.loops.solve import ldlt_fallbacks, solver_label
 from frontdiag.loops.stats import LoopStats, loop_stats
 from frontdiag.loops.stiffness import (
     AXES,
@@ -70,6 +70,9 @@ class LoopAudit:
     """The map test's last maps (``verify.tested_map``), reused within this audit only."""
     draws: Any = field(default=None, repr=False, compare=False)
     """The map test's noise draws (``verify.edge_draws``), shared by this audit's tests only."""
+    sparse_solver: str = ""
+    """The factorisation the audit used (``solve.solver_label``), with the matrices CHOLMOD
+    refused and QDLDL factorised, if any."""
 
     def kept_edges(self) -> np.ndarray:
         """Edges (odometry and loops) of the graph without the refuted loops."""
@@ -138,6 +141,7 @@ def _audit(graph: PoseGraph, rules: LoopRules | None, *, odom_max_gap: int, veri
     say = progress or (lambda _s: None)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
+    fallbacks0 = ldlt_fallbacks()
     odo = graph.odometry_mask(odom_max_gap)
     if graph.n_edges and not odo.any():
         raise GraphError(graph.path, f"no odometry: none of its {graph.n_edges} edges joins two "
@@ -250,6 +254,7 @@ def _audit(graph: PoseGraph, rules: LoopRules | None, *, odom_max_gap: int, veri
     if no_loops:
         result.notes.append(no_loops)
     timings["total_s"] = time.perf_counter() - t0
+    result.sparse_solver = solver_label(graph.k, ldlt_fallbacks() - fallbacks0)
     return result
 
 
@@ -360,7 +365,7 @@ def summary(result: LoopAudit, top: int = 10) -> dict[str, Any]:
         "link_stiffness_m2": result.stats.link_stiffness,
         "overconfident_edges": _overconfident_rows(result, top),
         "timings_s": result.timings,
-        "sparse_solver": solver_label(result.graph.k),
+        "sparse_solver": result.sparse_solver or solver_label(result.graph.k),
         "notes": result.graph.notes + result.notes,
         "worst": flagged.head(top)[cols].to_dict(orient="records"),
     }

@@ -228,11 +228,26 @@ def sparse_backend(k: int | None) -> str:
     return "cholmod" if k == 6 and cholmod_available() else "qdldl"
 
 
-def solver_label(k: int) -> str:
+def solver_label(k: int, fallbacks: int = 0) -> str:
     """What :func:`sparse_backend` picks for a graph of tangent dimension k, for the audit's
-    summary."""
-    return {"qdldl": "QDLDL (simplicial LDLT)",
-            "cholmod": "CHOLMOD (supernodal Cholesky, cvxopt)"}[sparse_backend(k)]
+    summary; ``fallbacks``: how many matrices CHOLMOD refused and QDLDL factorised instead
+    (:func:`ldlt_fallbacks`), said where there were any."""
+    label = {"qdldl": "QDLDL (simplicial LDLT)",
+             "cholmod": "CHOLMOD (supernodal Cholesky, cvxopt)"}[sparse_backend(k)]
+    if fallbacks:
+        label += (f"; QDLDL on {fallbacks} matri{'x' if fallbacks == 1 else 'ces'} that "
+                  "Cholesky refused as not definite")
+    return label
+
+
+_LDLT_FALLBACKS = [0]
+"""Matrices CHOLMOD refused and QDLDL factorised, since the process started (one audit at a
+time per process: the audit reads the count before and after)."""
+
+
+def ldlt_fallbacks() -> int:
+    """How many matrices CHOLMOD has refused (and QDLDL factorised) in this process."""
+    return _LDLT_FALLBACKS[0]
 
 
 class _Qdldl:
@@ -322,6 +337,7 @@ class Factor:
         """Cholesky needs a definite matrix; LDLᵀ carries on through a pivot that is zero to
         rounding (a part of the graph the gauge does not reach), as it did before CHOLMOD."""
         log.info("CHOLMOD refused a matrix that is not definite; QDLDL factorises it")
+        _LDLT_FALLBACKS[0] += 1
         self.backend = "qdldl"
         return _Qdldl(T)
 
