@@ -327,14 +327,15 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
         counts = {t.topic: t.count for t in topic_infos}
         expected = sum(_expected(counts.get(t), opts, rec) or 0
                        for t in (choice.camera, choice.lidar) if t)
-        if opts.jobs > 1:
-            from frontdiag.parallel import run_windows
+        from frontdiag.parallel import one_blas_thread, run_windows
 
-            run = run_windows(path, rec, choice, opts, intr, progress=progress,
-                              expected=expected, sink=sink)
-        else:
-            run = run_stream(rec, choice, opts, intr, progress=progress, expected=expected,
-                             sink=sink)
+        with one_blas_thread():  # small products: a second thread only spins
+            if opts.jobs > 1:
+                run = run_windows(path, rec, choice, opts, intr, progress=progress,
+                                  expected=expected, sink=sink)
+            else:
+                run = run_stream(rec, choice, opts, intr, progress=progress,
+                                 expected=expected, sink=sink)
         fault = _stream_notes(path, rec, run, notes)
         table = _table(run.rows)
         coverage = _coverage(run, table)

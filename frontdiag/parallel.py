@@ -153,6 +153,24 @@ def frame_sized_malloc() -> bool:
 
 
 @contextmanager
+def one_blas_thread() -> Iterator[None]:
+    """BLAS on one thread for the block, the caller's setting restored after. The frontend's
+    products are small (the 1 000 x 961 patch moments of the keypoints' orientation, 3 x 3 and
+    9 x 9 decompositions): a second thread never speeds them up, spins on the other core, and
+    slows a pass by half when that core is busy (docs/performance.md). threadpoolctl limits
+    the libraries loaded when the block starts, so the ones the pass would load on first use
+    (FAISS's and SciPy's own OpenBLAS) are loaded first."""
+    import scipy.linalg  # noqa: F401  (SciPy's OpenBLAS)
+    from threadpoolctl import threadpool_limits
+
+    from frontdiag.camera.matching import _faiss_module
+
+    _faiss_module()  # FAISS's OpenBLAS
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield
+
+
+@contextmanager
 def one_core() -> Iterator[None]:
     """A task that is itself the parallelism (a window, a recording of a fleet): OpenCV and
     BLAS on one thread each, so that N tasks use N cores and not N x threads. OpenCV's setting
@@ -160,11 +178,10 @@ def one_core() -> Iterator[None]:
     whose environment fixed glibc's malloc thresholds low (a Dask worker) gets thresholds fit
     for pictures (:func:`frame_sized_malloc`)."""
     import cv2
-    from threadpoolctl import threadpool_limits
 
     frame_sized_malloc()
     cv2.setNumThreads(1)
-    with threadpool_limits(limits=1, user_api="blas"):
+    with one_blas_thread():
         yield
 
 

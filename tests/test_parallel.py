@@ -60,6 +60,32 @@ def test_parallel_table_equals_serial(tmp_path: Path, shift: int) -> None:
     assert serial.verdicts.episodes.equals(par.verdicts.episodes)
 
 
+def test_a_serial_pass_runs_blas_on_one_thread(tmp_path: Path) -> None:
+    """The frontend's products are small: in a serial pass BLAS runs on one thread (a second
+    one spun on the other core for nothing, and slowed the pass by half when that core was
+    busy), and the caller's setting is back afterwards."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    def blas_threads() -> set[int]:
+        return {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}
+
+    seen: list[set[int]] = []
+    path = write_recording(tmp_path / "run.mcap", "mcap", n=8)
+    with threadpool_limits(limits=2, user_api="blas"):
+        caller = blas_threads()
+        assert caller  # numpy's BLAS is loaded
+        run_analysis(path, AnalysisOptions(),
+                     sink=lambda row, annotation, record: seen.append(blas_threads()))
+        after = blas_threads()
+    assert len(seen) == 8 and all(s == {1} for s in seen)
+    assert after == caller
+    seen.clear()  # --jobs 2 on a recording too short to split: analysed here, the same way
+    with threadpool_limits(limits=2, user_api="blas"):
+        res = run_analysis(path, AnalysisOptions(jobs=2),
+                           sink=lambda row, annotation, record: seen.append(blas_threads()))
+    assert res.windows == 1 and len(seen) == 8 and all(s == {1} for s in seen)
+
+
 def test_frames_reach_the_sink_wherever_they_are_analysed_in_this_process(tmp_path: Path
                                                                          ) -> None:
     """--jobs 2 on a recording too short to split runs in one window here: its frames reach
