@@ -162,6 +162,97 @@ def test_annotations_are_what_the_frontend_computed(analysed: tuple[Path, Path])
     assert seen_inliers
 
 
+def _annotations_by_typestore(ann: Any, t_ns: int) -> bytes:
+    """The frame's ImageAnnotations built as message objects and serialised by rosbags (as
+    diagnostics.mcap was written before the direct encoder): the oracle for its bytes."""
+    from frontdiag.report.mcap_ import KP_CLASSES, DiagnosticsWriter
+
+    ts = DiagnosticsWriter(Path("unused.mcap")).ts
+    T = ts.types
+    P2, Pts, Txt = (T["foxglove_msgs/msg/Point2"], T["foxglove_msgs/msg/PointsAnnotation"],
+                    T["foxglove_msgs/msg/TextAnnotation"])
+
+    def color(name: str) -> Any:
+        return T["foxglove_msgs/msg/Color"](*COLORS[name])
+
+    stamp = T["builtin_interfaces/msg/Time"](sec=t_ns // 10**9, nanosec=t_ns % 10**9)
+    points, texts = [], []
+    rows, cols = ann.grid_counts.shape if ann.grid_counts.ndim == 2 else (0, 0)
+    w, h = float(ann.width), float(ann.height)
+    if rows and cols and w and h:
+        seg = []
+        for i in range(1, cols):
+            seg += [P2(w * i / cols, 0.0), P2(w * i / cols, h)]
+        for j in range(1, rows):
+            seg += [P2(0.0, h * j / rows), P2(w, h * j / rows)]
+        points.append(Pts(stamp, 4, seg, color("grid"), [], color("text_bg"), 1.0))
+    if len(ann.flow_cur):
+        seg = []
+        for (x0, y0), (x1, y1) in zip(ann.flow_ref.tolist(), ann.flow_cur.tolist(), strict=True):
+            seg += [P2(x0, y0), P2(x1, y1)]
+        points.append(Pts(stamp, 4, seg, color("flow"), [], color("text_bg"), 1.0))
+    for state, name in KP_CLASSES:
+        sel = ann.xy[ann.state == state]
+        if len(sel):
+            points.append(Pts(stamp, 1, [P2(x, y) for x, y in sel.tolist()], color(name), [],
+                              color(name), 4.0))
+    if rows and cols and w and h:
+        size = max(10.0, min(w / cols, h / rows) / 4)
+        for j in range(rows):
+            for i in range(cols):
+                texts.append(Txt(stamp, P2(w * i / cols + 3, h * j / rows + size + 2),
+                                 str(int(ann.grid_counts[j, i])), size, color("text"),
+                                 color("text_bg")))
+    msg = T["foxglove_msgs/msg/ImageAnnotations"]([], points, texts)
+    return bytes(ts.serialize_cdr(msg, "foxglove_msgs/msg/ImageAnnotations"))
+
+
+def test_annotations_are_encoded_byte_for_byte_as_rosbags_would(analysed: tuple[Path, Path]
+                                                                ) -> None:
+    """The camera annotations are CDR-encoded directly (whole float64 arrays, not one
+    message object per keypoint); every byte is what rosbags' serialiser gives for the same
+    message: with and without flow, grid or keypoints of a state, counts of 1 to 4 digits
+    (strings of every length modulo 4), odd sizes and stamps; and every frame of the
+    analysed recording."""
+    from frontdiag.records import CameraAnnotation
+    from frontdiag.report.mcap_ import image_annotations_cdr
+
+    rng = np.random.default_rng(7)
+    cases = []
+    for case in range(12):
+        n = int(rng.integers(0, 300)) if case else 0
+        w, h = (int(rng.integers(17, 1300)), int(rng.integers(9, 900))) if case != 3 else (0, 0)
+        state = rng.integers(0, 4 if case % 2 else 2, n).astype(np.uint8)
+        xy = (rng.random((n, 2)) * [w or 1, h or 1]).astype(np.float32)
+        grid = (rng.integers(0, 10 ** (1 + case % 4), (6, 8)) if case != 5
+                else np.zeros(0, np.int64))
+        m = int(rng.integers(0, n + 1)) if case % 3 else 0
+        ann = CameraAnnotation(w, h, xy, state, grid, ref_frame=case - 1,
+                               flow_ref=(rng.random((m, 2)) * 500).astype(np.float32),
+                               flow_cur=(rng.random((m, 2)) * 500).astype(np.float32))
+        cases.append((ann, int(rng.integers(0, 2**31 * 10**9))))  # Time.sec is an int32
+    for ann, t_ns in cases:
+        assert image_annotations_cdr(ann, t_ns) == _annotations_by_typestore(ann, t_ns)
+    # and the file: each message as written decodes, and encodes again to the same bytes
+    _, out = analysed
+    raw = _raw_messages(out / "diagnostics.mcap", "/frontdiag/camera/annotations")
+    assert raw
+    from frontdiag.report.mcap_ import DiagnosticsWriter
+
+    ts = DiagnosticsWriter(Path("unused.mcap")).ts
+    for data in raw:
+        msg = ts.deserialize_cdr(data, "foxglove_msgs/msg/ImageAnnotations")
+        assert bytes(ts.serialize_cdr(msg, "foxglove_msgs/msg/ImageAnnotations")) == data
+
+
+def _raw_messages(path: Path, topic: str) -> list[bytes]:
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as fh:
+        return [bytes(m.data) for _, c, m in make_reader(fh).iter_messages(log_time_order=True)
+                if c.topic == topic]
+
+
 def test_lidar_used_points_and_weak_direction(analysed: tuple[Path, Path]) -> None:
     _, out = analysed
     table = pd.read_parquet(out / "frames.parquet")
