@@ -163,9 +163,9 @@ def one_blas_thread() -> Iterator[None]:
     import scipy.linalg  # noqa: F401  (SciPy's OpenBLAS)
     from threadpoolctl import threadpool_limits
 
-    from frontdiag.camera.matching import _faiss_module
+    from frontdiag.camera.matching import faiss_module
 
-    _faiss_module()  # FAISS's OpenBLAS
+    faiss_module()  # FAISS's OpenBLAS
     with threadpool_limits(limits=1, user_api="blas"):
         yield
 

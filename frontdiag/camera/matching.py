@@ -26,7 +26,9 @@ GOOD_MATCH_BITS = 50
 _faiss: Any = None
 
 
-def _faiss_module() -> Any:
+def faiss_module() -> Any:
+    """The faiss module, imported on first use (``parallel.one_blas_thread`` loads it before
+    limiting BLAS, as faiss carries its own OpenBLAS)."""
     global _faiss
     if _faiss is None:
         import faiss  # imported on first use: `frontdiag --help` need not load it
@@ -44,7 +46,7 @@ def hamming_matrix(q_des: np.ndarray, t_des: np.ndarray) -> np.ndarray:
     out = np.empty((len(q), len(t)), np.int32)
     if len(q) == 0 or len(t) == 0:
         return out
-    faiss = _faiss_module()
+    faiss = faiss_module()
     faiss.hammings(faiss.swig_ptr(q), faiss.swig_ptr(t), len(q), len(t), q.shape[1],
                    faiss.swig_ptr(out))
     return out
