@@ -157,9 +157,9 @@ def one_blas_thread() -> Iterator[None]:
     """BLAS on one thread for the block, the caller's setting restored after. The frontend's
     products are small (the 1 000 x 961 patch moments of the keypoints' orientation, 3 x 3 and
     9 x 9 decompositions): a second thread never speeds them up, spins on the other core, and
-    slows a pass by half when that core is busy (docs/performance.md). threadpoolctl limits
-    the libraries loaded when the block starts, so the ones the pass would load on first use
-    (FAISS's and SciPy's own OpenBLAS) are loaded first."""
+    slows the command by up to 1.8x when that core is busy (docs/performance.md).
+    threadpoolctl limits the libraries loaded when the block starts, so the ones the pass
+    would load on first use (FAISS's and SciPy's own OpenBLAS) are loaded first."""
     import scipy.linalg  # noqa: F401  (SciPy's OpenBLAS)
     from threadpoolctl import threadpool_limits
 

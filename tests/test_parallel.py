@@ -62,8 +62,8 @@ def test_parallel_table_equals_serial(tmp_path: Path, shift: int) -> None:
 
 def test_a_serial_pass_runs_blas_on_one_thread(tmp_path: Path) -> None:
     """The frontend's products are small: in a serial pass BLAS runs on one thread (a second
-    one spun on the other core for nothing, and slowed the pass by half when that core was
-    busy), and the caller's setting is back afterwards."""
+    one spun on the other core for nothing, and slowed the command by up to 1.8x when that
+    core was busy), and the caller's setting is back afterwards."""
     from threadpoolctl import threadpool_info, threadpool_limits
 
     def blas_threads() -> set[int]:
