@@ -43,6 +43,7 @@ import numpy as np
 import pandas as pd
 
 from frontdiag.io.readers import DIAGNOSTICS_NAME
+from frontdiag.io.writer import stamp as _stamp
 from frontdiag.metrics import METRICS
 from frontdiag.records import (
     KP_INLIER,
@@ -113,10 +114,6 @@ MAX_USED_POINTS = 8192
 """Used points written per scan at most (every k-th in order): the cloud is there to see which
 structure the registration had, and 20k points x 1200 scans would make the file larger than the
 recording's LiDAR stream."""
-
-
-def _stamp(t_ns: int) -> dict[str, int]:
-    return {"sec": int(t_ns // 1_000_000_000), "nanosec": int(t_ns % 1_000_000_000)}
 
 
 def _field(name: str) -> str:
@@ -418,7 +415,8 @@ class _Cdr:
 
     def time(self, t_ns: int) -> None:
         self._align(4)
-        self._raw(struct.pack("<iI", int(t_ns // 1_000_000_000), int(t_ns % 1_000_000_000)))
+        st = _stamp(t_ns)
+        self._raw(struct.pack("<iI", st["sec"], st["nanosec"]))
 
     def f64(self, *v: float) -> None:
         self._align(8)
