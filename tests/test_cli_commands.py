@@ -91,6 +91,10 @@ def test_explain_on_a_recording_says_to_analyse_first(
     log = write_recording(tmp_path / "run.mcap", "mcap", n=4)
     code, _, err = run(["explain", str(log), "--frame", "1"], capsys)
     assert code == 2 and "is a recording" in err and "analyze" in err and "--out" in err
+    # a rule ID where the run's folder goes points to the rule's own text
+    code, _, err = run(["explain", "fd-pln-001"], capsys)
+    assert code == 2 and "rule ID" in err and "frontdiag rules explain FD-PLN-001" in err
+    assert "Traceback" not in err
     out = tmp_path / "res"
     assert main(["analyze", str(log), "--out", str(out), "-q", "--fail-on", "never"]) == 0
     capsys.readouterr()

@@ -180,6 +180,17 @@ def build_explanation(result_dir: Path, frame: int | None, t: float | None,
     from frontdiag.verdicts.explain import explain_row
 
     if not result_dir.exists():
+        import re
+
+        from frontdiag.verdicts.model import RULE_ID_PATTERN
+
+        if re.match(RULE_ID_PATTERN, str(result_dir).upper()):
+            # `explain FD-PLN-001`: a rule, not a run
+            raise ConfigError(f"{result_dir}: no such file or directory; it reads as a rule ID",
+                              hint=f"a rule's text and thresholds: `frontdiag rules explain "
+                              f"{str(result_dir).upper()}`; one frame of a run: `frontdiag "
+                              "explain DIR --frame N` with the --out directory of `frontdiag "
+                              "analyze`")
         raise ConfigError(f"{result_dir}: no such file or directory",
                           hint="pass the --out directory of `frontdiag analyze`")
     path = result_dir / "frames.parquet" if result_dir.is_dir() else result_dir
