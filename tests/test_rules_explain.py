@@ -37,6 +37,18 @@ def test_rules_explain_shows_text_thresholds_and_units(capsys) -> None:
     assert "persistence 3 of 5" in out
 
 
+def test_a_rule_id_after_rules_is_explained(capsys) -> None:
+    """`frontdiag rules FD-CLU-001` is `rules explain FD-CLU-001`; other words stay errors."""
+    assert main(["rules", "explain", "FD-CLU-001"]) == 0
+    by_explain = capsys.readouterr().out
+    assert main(["rules", "fd-clu-001"]) == 0
+    assert capsys.readouterr().out == by_explain
+    assert main(["rules", "FD-NOP-001"]) == 2
+    assert "unknown rule" in capsys.readouterr().err
+    assert main(["rules", "lsit"]) == 2
+    assert "No such command" in capsys.readouterr().err
+
+
 def test_rules_explain_unknown_id_exits_2(capsys) -> None:
     assert main(["rules", "explain", "FD-NOP-001"]) == 2
     assert "unknown rule" in capsys.readouterr().err

@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Any
 
 import typer
+from typer.core import TyperGroup
 
 from frontdiag.errors import EXIT_INPUT, EXIT_OK
 
@@ -34,10 +35,29 @@ def load_cli_ruleset(rules_dir: Path | None, no_default: bool, overrides: Path |
     return load_ruleset(None, overrides, select, ignore, extra_dirs=[rules_dir])
 
 
+class _RulesGroup(TyperGroup):
+    """`frontdiag rules FD-PLN-001` is `frontdiag rules explain FD-PLN-001`: a rule ID where
+    the subcommand goes is what a user who wants the rule's text types first."""
+
+    def resolve_command(self, ctx: Any, args: list[str]) -> Any:
+        import re
+
+        from frontdiag.verdicts.model import RULE_ID_PATTERN
+
+        if args and args[0] not in self.commands and re.match(RULE_ID_PATTERN, args[0].upper()):
+            args = ["explain", *args]
+        return super().resolve_command(ctx, args)
+
+
 def register(app: typer.Typer) -> None:
     """Add `frontdiag rules ...` to the app."""
-    rules_app = typer.Typer(name="rules", no_args_is_help=True,
-                            help="List, explain and validate the diagnosis rules (rules/*.toml).")
+    rules_app = typer.Typer(name="rules", no_args_is_help=True, cls=_RulesGroup,
+                            help="List, explain and validate the diagnosis rules (rules/*.toml)."
+                                 "\n\nExamples:\n\n  frontdiag rules list\n\n"
+                                 "  frontdiag rules explain FD-PLN-001\n\n"
+                                 "  frontdiag rules FD-PLN-001     # the same: explain is the "
+                                 "default for a rule ID\n\n"
+                                 "  frontdiag rules check my_rules/")
 
     @rules_app.command("list")
     def list_(
