@@ -61,6 +61,11 @@ def encode(gray: np.ndarray, encoding: str) -> tuple[str, np.ndarray | bytes]:
         return "raw", np.dstack([gray, gray, gray])
     if encoding in ("rgba8", "bgra8"):
         return "raw", np.dstack([gray, gray, gray, np.full_like(gray, 255)])
+    if encoding in ("rgb16", "bgr16"):
+        return "raw", np.dstack([gray, gray, gray]).astype(np.uint16) * 257
+    if encoding in ("rgba16", "bgra16"):
+        g16 = gray.astype(np.uint16) * 257
+        return "raw", np.dstack([g16, g16, g16, np.full_like(g16, 65535)])
     if encoding.startswith("bayer_"):
         return "raw", gray  # a flat-colour scene has the same value in every Bayer site
     if encoding in ("jpeg", "png"):

@@ -195,7 +195,7 @@ def test_folder_of_split_ros1_bags(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize("encoding", ["mono8", "mono16", "rgb8", "bgr8", "rgba8", "bgra8",
-                                      "jpeg", "png"])
+                                      "rgb16", "bgra16", "jpeg", "png"])
 def test_every_encoding_becomes_the_same_grey(tmp_path: Path, encoding: str) -> None:
     path = write_recording(tmp_path / "run.mcap", "mcap", n=2, encoding=encoding)
     with open_recording(path) as rec:
@@ -233,6 +233,75 @@ def test_packed_yuv422_gives_its_luma(encoding: str, luma_at: int) -> None:
     gray, enc = GrayConverter("/cam")(msg, "sensor_msgs/msg/Image")
     assert enc == encoding and gray.shape == (6, 8)
     assert np.array_equal(gray, luma)
+
+
+@pytest.mark.parametrize("encoding,order", [("rgb16", "RGB"), ("bgr16", "BGR"),
+                                            ("16uc3", "BGR"), ("rgba16", "RGBA"),
+                                            ("bgra16", "BGRA"), ("16uc4", "BGRA")])
+@pytest.mark.parametrize("bigendian", [0, 1])
+def test_16_bit_colour_gives_the_grey_of_its_8_bit_twin(encoding: str, order: str,
+                                                        bigendian: int) -> None:
+    """A 12-bit colour picture (16 bits a channel, as machine-vision cameras send) is converted
+    to grey at 16 bits and mapped by the run's fixed shift: the grey of the same picture at 8
+    bits, to a grey level (OpenCV rounds the weighted sum at each depth)."""
+    ts = typestore(2)
+    rng = np.random.default_rng(7)
+    c8 = rng.integers(0, 256, (6, 8, len(order)), dtype=np.uint8)
+    c8[0, 0, :3] = 255  # the peak sets the shift: 12 bits -> 4
+    code = getattr(cv2, f"COLOR_{order}2GRAY")
+    want = cv2.cvtColor(np.ascontiguousarray(c8), code)
+    c16 = c8.astype(np.uint16) << 4
+    vals = image_msg(c16.astype(">u2" if bigendian else "<u2"), encoding, 1)
+    vals["is_bigendian"] = bigendian
+    msg = build_message(ts, "sensor_msgs/msg/Image", vals)
+    conv = GrayConverter("/cam")
+    gray, enc = conv(msg, "sensor_msgs/msg/Image")
+    assert enc == encoding and gray.shape == (6, 8) and gray.dtype == np.uint8
+    assert np.abs(gray.astype(int) - want.astype(int)).max() <= 1
+    assert conv.mono16 is not None and conv.mono16["shift"] == 4
+
+
+@pytest.mark.parametrize("encoding", ["bayer_rggb16", "bayer_bggr16", "bayer_gbrg16",
+                                      "bayer_grbg16"])
+def test_16_bit_bayer_is_demosaiced_like_its_8_bit_twin(encoding: str) -> None:
+    """The same mosaic at 8 bits and scaled to 12 bits demosaics to the same grey: the
+    pattern names map to OpenCV's codes as the 8-bit ones do."""
+    ts = typestore(2)
+    rng = np.random.default_rng(11)
+    m8 = rng.integers(0, 256, (10, 12), dtype=np.uint8)
+    m8[0, 0] = 255
+    twin = encoding.replace("16", "8")
+    g8, _ = GrayConverter("/cam")(build_message(ts, "sensor_msgs/msg/Image",
+                                               image_msg(m8, twin, 1)), "sensor_msgs/msg/Image")
+    m16 = m8.astype(np.uint16) << 4
+    g16, enc = GrayConverter("/cam")(build_message(ts, "sensor_msgs/msg/Image",
+                                                  image_msg(m16, encoding, 1)),
+                                     "sensor_msgs/msg/Image")
+    assert enc == encoding and g16.shape == (10, 12)
+    # demosaicing interpolates at 16 bits, then the shift drops 4 of them: within a level
+    assert np.abs(g16.astype(int) - g8.astype(int)).max() <= 1
+
+
+@pytest.mark.parametrize("encoding", ["nv12", "nv21"])
+@pytest.mark.parametrize("h", [6, 7])
+def test_semi_planar_yuv420_gives_its_luma_plane(encoding: str, h: int) -> None:
+    """NV12 / NV21 hold ``height`` rows of luma, then ceil(height / 2) rows of interleaved
+    chroma: grey is the luma plane, whatever the chroma holds; a message cut inside the chroma
+    plane is damaged, named by its field."""
+    ts = typestore(2)
+    w, step = 8, 10  # rows padded beyond the width
+    luma = (np.arange(h * w, dtype=np.uint8).reshape(h, w) * 3) + 7
+    buf = np.full((h + (h + 1) // 2, step), 201, np.uint8)  # chroma and padding far from luma
+    buf[:h, :w] = luma
+    vals = image_msg(buf, encoding, 1)
+    vals.update(height=h, width=w, step=step)
+    msg = build_message(ts, "sensor_msgs/msg/Image", vals)
+    gray, enc = GrayConverter("/cam")(msg, "sensor_msgs/msg/Image")
+    assert enc == encoding and np.array_equal(gray, luma)
+    vals["data"] = vals["data"][: step * h + step]  # the chroma plane cut after one row
+    msg = build_message(ts, "sensor_msgs/msg/Image", vals)
+    with pytest.raises(DecodeError, match=r"topic /cam: field data.*step\*height\*1.5"):
+        GrayConverter("/cam")(msg, "sensor_msgs/msg/Image")
 
 
 def test_bayer_pattern_mapping_matches_colour_conversion() -> None:

@@ -79,19 +79,38 @@ _ENCODINGS: dict[str, tuple[int, int, int | None]] = {
     "rgba8": (4, 1, cv2.COLOR_RGBA2GRAY),
     "bgra8": (4, 1, cv2.COLOR_BGRA2GRAY),
     "8uc4": (4, 1, cv2.COLOR_BGRA2GRAY),
+    # 16 bits a channel (machine-vision cameras' 10-12 bit colour): grey at 16 bits, then the
+    # run's fixed 16-to-8 mapping, as mono16
+    "rgb16": (3, 2, cv2.COLOR_RGB2GRAY),
+    "bgr16": (3, 2, cv2.COLOR_BGR2GRAY),
+    "16uc3": (3, 2, cv2.COLOR_BGR2GRAY),
+    "rgba16": (4, 2, cv2.COLOR_RGBA2GRAY),
+    "bgra16": (4, 2, cv2.COLOR_BGRA2GRAY),
+    "16uc4": (4, 2, cv2.COLOR_BGRA2GRAY),
     # ROS names the pattern of the top-left 2x2 block; OpenCV names the second row's
     # second and third pixels, hence the shift (the same mapping cv_bridge uses).
     "bayer_rggb8": (1, 1, cv2.COLOR_BayerBG2GRAY),
     "bayer_bggr8": (1, 1, cv2.COLOR_BayerRG2GRAY),
     "bayer_gbrg8": (1, 1, cv2.COLOR_BayerGR2GRAY),
     "bayer_grbg8": (1, 1, cv2.COLOR_BayerGB2GRAY),
+    "bayer_rggb16": (1, 2, cv2.COLOR_BayerBG2GRAY),
+    "bayer_bggr16": (1, 2, cv2.COLOR_BayerRG2GRAY),
+    "bayer_gbrg16": (1, 2, cv2.COLOR_BayerGR2GRAY),
+    "bayer_grbg16": (1, 2, cv2.COLOR_BayerGB2GRAY),
     # packed 4:2:2 (two bytes a pixel): "yuv422" is UYVY (ROS 1 and 2), "yuv422_yuy2" YUYV
     # (ROS 2), and newer ROS 2 releases name them "uyvy" and "yuyv"; grey is each pixel's luma
     "yuv422": (2, 1, cv2.COLOR_YUV2GRAY_UYVY),
     "uyvy": (2, 1, cv2.COLOR_YUV2GRAY_UYVY),
     "yuv422_yuy2": (2, 1, cv2.COLOR_YUV2GRAY_YUY2),
     "yuyv": (2, 1, cv2.COLOR_YUV2GRAY_YUY2),
+    # semi-planar 4:2:0 (Jetson and phone camera pipelines): a full-size luma plane of
+    # ``height`` rows of ``step`` bytes, then one of interleaved chroma at half height, which
+    # grey does not need (``_YUV420SP``)
+    "nv12": (1, 1, None),
+    "nv21": (1, 1, None),
 }
+_YUV420SP = ("nv12", "nv21")
+"""Encodings whose data holds 1.5 x height rows: the luma plane, then the chroma."""
 SUPPORTED_ENCODINGS: tuple[str, ...] = tuple(k for k in _ENCODINGS if not k[0].isdigit())
 
 
@@ -176,14 +195,20 @@ class GrayConverter:
                               f"step {step} is smaller than width*channels*bytes = {row_bytes} "
                               f"for {w}x{h} {enc}")
         data = np.asarray(msg.data, dtype=np.uint8)
-        if data.size < step * h:
+        need, what = step * h, "step*height"
+        if enc in _YUV420SP:  # the chroma plane's rows count too: a cut message is damaged
+            need, what = step * (h + (h + 1) // 2), "step*height*1.5 (luma, then chroma)"
+        if data.size < need:
             raise DecodeError(self.topic, "data",
-                              f"{data.size} bytes, expected step*height = {step * h} for "
+                              f"{data.size} bytes, expected {what} = {need} for "
                               f"{w}x{h} {enc}")
         rows = data[: step * h].reshape(h, step)[:, :row_bytes]
         if depth == 2:
             dt = np.dtype(">u2") if int(msg.is_bigendian) else np.dtype("<u2")
-            img16 = np.ascontiguousarray(rows).view(dt).reshape(h, w).astype(np.uint16)
+            img16: np.ndarray = np.ascontiguousarray(rows).view(dt).astype(np.uint16)
+            img16 = img16.reshape(h, w, channels) if channels > 1 else img16.reshape(h, w)
+            if code is not None:  # grey at 16 bits (OpenCV converts and demosaics 16U)
+                img16 = cv2.cvtColor(img16, code)
             return self._mono16_to_8(img16)
         img: np.ndarray = rows.reshape(h, w, channels) if channels > 1 else rows
         img = np.ascontiguousarray(img)
