@@ -86,7 +86,8 @@ def images(writer: Callable[..., Path]) -> Callable[[Path, random.Random], Path]
                     fields[key] = rng.choice([0, -1, v * 2, v + 1, 2**31 - 1])
                 elif isinstance(v, str):
                     fields[key] = rng.choice(["", "rgb8", "bgr8", "mono16", "16UC1", "jpeg",
-                                              "weird"])
+                                              "weird", "rgb16", "bayer_rggb16", "nv12",
+                                              "nv21", "bgra16"])
                 elif isinstance(v, list):
                     fields[key] = v[:rng.randrange(len(v) + 1)]
             out.append((topic, schema, t, fields))
