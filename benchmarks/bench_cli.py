@@ -11,7 +11,10 @@ With ``--busy`` a second process keeps the other core busy (a pure-Python loop) 
 run, as on a CI runner or a laptop doing something else: a pass that leans on a second thread
 slows down there.
 
-    python benchmarks/bench_cli.py REC [REC ...] [--runs 5] [--busy]
+With ``--jobs N`` the command runs ``analyze --jobs N`` (time windows on N processes; the
+CPU column then counts the workers too, once they have exited).
+
+    python benchmarks/bench_cli.py REC [REC ...] [--runs 5] [--busy] [--jobs N]
 """
 
 from __future__ import annotations
@@ -38,13 +41,13 @@ def _spin(stop: Any) -> None:
             x += 1
 
 
-def one_run(rec: Path, out: Path) -> dict[str, float]:
+def one_run(rec: Path, out: Path, jobs: int = 1) -> dict[str, float]:
     """One ``frontdiag analyze`` in a child process: wall and CPU seconds, peak RSS (MiB)."""
     shutil.rmtree(out, ignore_errors=True)
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     proc = subprocess.run([sys.executable, "-m", "frontdiag", "analyze", str(rec), "--out",
-                           str(out), "--quiet", "--fail-on", "never"],
+                           str(out), "--quiet", "--fail-on", "never", "--jobs", str(jobs)],
                           capture_output=True, text=True, check=False)
     wall = time.perf_counter() - t0
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -68,11 +71,12 @@ def main() -> None:
                                                           "not counted)")
     ap.add_argument("--busy", action="store_true",
                     help="keep the other core busy during every run")
+    ap.add_argument("--jobs", type=int, default=1, help="analyze --jobs N (default 1)")
     args = ap.parse_args()
     threads = {k: os.environ[k] for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
                                           "MKL_NUM_THREADS") if k in os.environ}
     print(f"cores {os.cpu_count()}; thread variables set: {threads or 'none'}; "
-          f"other core {'busy' if args.busy else 'idle'}")
+          f"other core {'busy' if args.busy else 'idle'}; analyze --jobs {args.jobs}")
     stop = mp.Event()
     spinner = mp.Process(target=_spin, args=(stop,), daemon=True) if args.busy else None
     if spinner is not None:
@@ -83,8 +87,8 @@ def main() -> None:
                   f"{'cpu s':>6s} {'cpu/wall':>8s} {'peak MiB':>8s}")
             for rec in args.recordings:
                 out = Path(tmp) / "out"
-                one_run(rec, out)  # warm-up: the file cache, the imports' bytecode
-                runs = [one_run(rec, out) for _ in range(args.runs)]
+                one_run(rec, out, args.jobs)  # warm-up: the file cache, the imports' bytecode
+                runs = [one_run(rec, out, args.jobs) for _ in range(args.runs)]
                 n = frames_of(out)
                 wall = statistics.median(r["wall"] for r in runs)
                 cpu = statistics.median(r["cpu"] for r in runs)

@@ -280,7 +280,9 @@ def run_analysis(path: Path | str, options: AnalysisOptions | None = None,
     before it: they are returned with ``Analysis.fault`` set. Ctrl-C does the same with
     ``Analysis.interrupted``. ``sink`` sees every analysed frame as it goes where they are
     analysed in this process: with ``jobs > 1`` and a recording split into windows
-    (``Analysis.windows`` > 1) they are analysed elsewhere and it is not called.
+    (``Analysis.windows`` > 1) they are analysed elsewhere and it is not called, except for
+    diagnostics.mcap's writer (``report.mcap_.DiagnosticsWriter``), which receives the windows'
+    annotations as parts (``parallel.run_windows``).
     """
     opts = options or AnalysisOptions()
     check_selection(opts)

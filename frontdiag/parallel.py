@@ -25,7 +25,9 @@ from __future__ import annotations
 
 import logging
 import multiprocessing as mp
-from collections.abc import Iterator, Sequence
+import shutil
+import tempfile
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import Future, ProcessPoolExecutor
 from contextlib import contextmanager
 from dataclasses import replace
@@ -66,7 +68,7 @@ def plan_windows(n_frames: int, jobs: int, overlap: int) -> list[FrameWindow]:
                         own_to=None if i == k - 1 else bounds[i + 1]) for i in range(k)]
 
 
-WINDOW_PRELOAD = ("frontdiag.runner", "frontdiag.camera.frontend")
+WINDOW_PRELOAD = ("frontdiag.runner", "frontdiag.camera.frontend", "frontdiag.report.mcap_")
 """What a window worker runs: imported once in the worker server."""
 FLEET_PRELOAD = (*WINDOW_PRELOAD, "frontdiag.api", "frontdiag.fleet", "frontdiag.output",
                  "frontdiag.report", "frontdiag.verdicts", "pyarrow.parquet")
@@ -250,15 +252,31 @@ def window_overlap(params: Any, stride: int = 1) -> int:
 
 
 def _task(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
-          frames: FrameWindow | None, resume: Any = None, until_keys: dict[int, Any] | None = None
-          ) -> StreamRun:
-    """One window (or the whole LiDAR stream) in a worker process."""
+          frames: FrameWindow | None, resume: Any = None, until_keys: dict[int, Any] | None = None,
+          part: str | None = None) -> StreamRun:
+    """One window (or the whole LiDAR stream) in a worker process; ``part``: a file for the
+    annotations of the frames it analyses (its part of diagnostics.mcap, ``StreamRun.part``)."""
     until = None if until_keys is None else (lambda f, key: until_keys.get(f) == key)
-    with interruptible(), one_core(), open_recording(path) as rec:
-        run = run_stream(rec, choice, opts, intr, frames=frames, resume=resume, until=until,
-                         record_keys=frames is not None,
-                         want_end_state=frames is not None)
-        reader_fault(path, rec, run)
+    sink = None
+    if part is not None:
+        from frontdiag.report.mcap_ import DiagnosticsWriter
+
+        sink = DiagnosticsWriter(part, part=True)
+        sink.open()
+    try:
+        with interruptible(), one_core(), open_recording(path) as rec:
+            run = run_stream(rec, choice, opts, intr, frames=frames, resume=resume, until=until,
+                             record_keys=frames is not None,
+                             want_end_state=frames is not None, sink=sink)
+            reader_fault(path, rec, run)
+    finally:
+        if sink is not None:
+            sink.close()  # what was analysed before a fault or Ctrl-C is in the file
+    if sink is not None:
+        run.part = sink.part()
+        for stream in (run.cam, run.lid):  # the writer stays here: the run goes back pickled
+            if stream is not None:
+                stream.sink = None
     return run
 
 
@@ -275,8 +293,10 @@ def run_windows(path: Path, rec: Recording, choice: TopicChoice, opts: Any,
                 intr: Intrinsics | None, *, progress: ProgressFn | None = None,
                 expected: int | None = None, sink: FrameSink | None = None) -> StreamRun:
     """The pass of :func:`frontdiag.runner.run_stream`, computed by ``opts.jobs`` processes
-    (``StreamRun.windows`` says how many camera windows); ``sink`` sees the frames only where
-    the recording is analysed in this process, in one window."""
+    (``StreamRun.windows`` says how many camera windows). ``sink`` sees the frames where the
+    recording is analysed in this process, in one window; a diagnostics.mcap writer
+    (``report.mcap_.DiagnosticsWriter``) also receives those of the windows analysed in other
+    processes, as parts merged in window order (the same messages as one pass writes)."""
     from frontdiag.camera.frontend import CameraParams
 
     n_cam = next((t.count for t in rec.topics if t.topic == choice.camera), None)
@@ -290,14 +310,40 @@ def run_windows(path: Path, rec: Recording, choice: TopicChoice, opts: Any,
                           sink=sink)
     cam_choice = replace(choice, lidar=None, lidar_type=None, odometry=None)
     lid_choice = replace(choice, camera=None, camera_type=None, camera_info=None)
+    # diagnostics.mcap: each task writes the annotations of its frames to a part file beside
+    # it, merged in below (other sinks are not called for frames analysed elsewhere)
+    from frontdiag.report.mcap_ import DiagnosticsWriter
+
+    merge = sink.merge_part if isinstance(sink, DiagnosticsWriter) else None
+    parts_dir = None
+    if isinstance(sink, DiagnosticsWriter):
+        parts_dir = Path(tempfile.mkdtemp(prefix=".frontdiag-parts-", dir=sink.path.parent))
+    try:
+        return _run_windows(path, choice, opts, intr, windows, cam_choice, lid_choice,
+                            progress, expected, parts_dir, merge)
+    finally:
+        if parts_dir is not None:
+            shutil.rmtree(parts_dir, ignore_errors=True)
+
+
+def _part(parts_dir: Path | None, name: str) -> str | None:
+    return None if parts_dir is None else str(parts_dir / f"{name}.mcap")
+
+
+def _run_windows(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
+                 windows: list[FrameWindow], cam_choice: TopicChoice, lid_choice: TopicChoice,
+                 progress: ProgressFn | None, expected: int | None, parts_dir: Path | None,
+                 merge: Callable[..., None] | None) -> StreamRun:
     runs: list[StreamRun | None] = [None] * len(windows)
     lid_run: StreamRun | None = None
     interrupted = False
     pool = ProcessPoolExecutor(max_workers=opts.jobs, mp_context=_context(),
                                initializer=worker_init)
     futs: dict[Future[StreamRun], int] = {
-        pool.submit(_task, path, cam_choice, opts, intr, w): i for i, w in enumerate(windows)}
-    lid_fut = pool.submit(_task, path, lid_choice, opts, intr, None) if choice.lidar else None
+        pool.submit(_task, path, cam_choice, opts, intr, w, part=_part(parts_dir, f"window{i}")):
+            i for i, w in enumerate(windows)}
+    lid_fut = pool.submit(_task, path, lid_choice, opts, intr, None,
+                          part=_part(parts_dir, "lidar")) if choice.lidar else None
     all_futs: list[Future[StreamRun]] = [*futs, *([lid_fut] if lid_fut else [])]
     done = 0
     try:
@@ -325,7 +371,13 @@ def run_windows(path: Path, rec: Recording, choice: TopicChoice, opts: Any,
                     runs[futs[fut]] = fut.result()
     finally:
         pool.shutdown(wait=not interrupted, cancel_futures=interrupted)
-    cam_rows, cam_stream, fault, cut = _stitch(path, cam_choice, opts, intr, windows, runs)
+    cam_rows, cam_stream, fault, cut, parts = _stitch(path, cam_choice, opts, intr, windows,
+                                                      runs, parts_dir)
+    if merge is not None:
+        for part, frames in parts:
+            merge(part, frames)
+        if lid_run is not None and lid_run.part is not None:
+            merge(lid_run.part)
     rows = list(cam_rows)
     lid_stream = None
     if lid_run is not None:
@@ -337,10 +389,17 @@ def run_windows(path: Path, rec: Recording, choice: TopicChoice, opts: Any,
                      interrupted=interrupted or cut, windows=len(windows))
 
 
+Parts = list[tuple[Any, "tuple[int, int | None] | None"]]
+"""Part files of diagnostics.mcap to merge, in order, each with the frames to take from it
+(None: all)."""
+
+
 def _stitch(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
-            windows: list[FrameWindow], runs: list[StreamRun | None]
-            ) -> tuple[list[dict[str, Any]], SensorStream | None, Any, bool]:
-    """Camera rows and counts of consecutive windows, in order, as one pass would give them.
+            windows: list[FrameWindow], runs: list[StreamRun | None],
+            parts_dir: Path | None = None
+            ) -> tuple[list[dict[str, Any]], SensorStream | None, Any, bool, Parts]:
+    """Camera rows and counts of consecutive windows, in order, as one pass would give them,
+    and the windows' parts of diagnostics.mcap that hold the same frames.
 
     Stops at the first window that is missing (interrupted), was interrupted, or was cut short
     by damage: what follows it would not be in a single pass's result either. Damage a window's
@@ -349,22 +408,27 @@ def _stitch(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
     damage is the pass's fault at the end, as in one pass.
     """
     rows: list[dict[str, Any]] = []
+    parts: Parts = []
     merged: SensorStream | None = None
     prev: StreamRun | None = None
     later_fault: Any = None
     for i, (w, run) in enumerate(zip(windows, runs, strict=True)):
         if run is None:
-            return rows, merged, None, True
+            return rows, merged, None, True, parts
         if prev is not None and not _met(prev, run, w):
-            run = _rerun(path, choice, opts, intr, w, prev, run)
+            run, window_parts = _rerun(path, choice, opts, intr, w, prev, run,
+                                       _part(parts_dir, f"window{i}-continued"))
+            parts += window_parts
+        elif run.part is not None:
+            parts.append((run.part, None))
         rows += run.rows
         merged = _merge_counts(merged, run.cam)
         if run.interrupted or (run.fault is not None and not _read_whole(run, w)):
-            return rows, merged, run.fault, run.interrupted
+            return rows, merged, run.fault, run.interrupted, parts
         later_fault = later_fault or run.fault
         prev = run
         log.debug("window %d: frames %d-%s, %d rows", i, w.own_from, w.own_to, len(run.rows))
-    return rows, merged, later_fault, False
+    return rows, merged, later_fault, False, parts
 
 
 def _read_whole(run: StreamRun, w: FrameWindow) -> bool:
@@ -380,18 +444,24 @@ def _met(prev: StreamRun, run: StreamRun, w: FrameWindow) -> bool:
 
 
 def _rerun(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
-           w: FrameWindow, prev: StreamRun, first: StreamRun) -> StreamRun:
+           w: FrameWindow, prev: StreamRun, first: StreamRun, part: str | None = None
+           ) -> tuple[StreamRun, Parts]:
     """Window ``w`` continued from the previous window's end state, until it meets its own
-    first run; that run's rows and end state are right from there on."""
+    first run; that run's rows and end state are right from there on. Also the parts of
+    diagnostics.mcap holding those frames: the continued run's up to the meeting frame, the
+    first run's after it."""
     log.info("window at frame %d: warm-up did not meet the previous window; continuing it "
              "from the previous window's state", w.own_from)
     fix = _task(path, choice, opts, intr, FrameWindow(w.own_from, w.own_from, w.own_to),
-                resume=prev.end_state, until_keys=first.keys)
+                resume=prev.end_state, until_keys=first.keys, part=part)
     if fix.stopped_at is None:  # never met: the continued run is the window
         fix.cam = first.cam  # counts do not depend on the frontend's state
-        return fix
+        return fix, ([(fix.part, None)] if fix.part is not None else [])
     rows = fix.rows + [r for r in first.rows if r["frame"] > fix.stopped_at]
-    return replace(first, rows=rows, keys={**first.keys, **fix.keys})
+    parts: Parts = []
+    if fix.part is not None and first.part is not None:
+        parts = [(fix.part, (0, fix.stopped_at)), (first.part, (fix.stopped_at + 1, None))]
+    return replace(first, rows=rows, keys={**first.keys, **fix.keys}), parts
 
 
 def _merge_counts(acc: SensorStream | None, cur: SensorStream | None) -> SensorStream | None:

@@ -300,6 +300,7 @@ class StreamRun:
     stopped_at: int | None = None  # camera frame after which ``until`` stopped the pass
     end_state: Any = None  # camera hand-over state at the end (when asked)
     windows: int = 1  # camera windows analysed in parallel (frontdiag.parallel)
+    part: Any = None  # a window's part of diagnostics.mcap (report.mcap_.DiagnosticsPart)
 
 
 def camera_key(front: Any, stream: SensorStream) -> Any:

@@ -89,8 +89,8 @@ def test_a_serial_pass_runs_blas_on_one_thread(tmp_path: Path) -> None:
 def test_frames_reach_the_sink_wherever_they_are_analysed_in_this_process(tmp_path: Path
                                                                          ) -> None:
     """--jobs 2 on a recording too short to split runs in one window here: its frames reach
-    the sink (the image annotations of diagnostics.mcap); split into windows they do not, and
-    ``windows`` says which happened."""
+    the sink; split into windows they do not (diagnostics.mcap's writer gets them as parts
+    instead: the test below), and ``windows`` says which happened."""
     seen: list[int] = []
 
     def sink(row: dict, annotation: object, record: object) -> None:
@@ -103,6 +103,103 @@ def test_frames_reach_the_sink_wherever_they_are_analysed_in_this_process(tmp_pa
     long = write_recording(tmp_path / "long.mcap", "mcap", n=150)
     res = run_analysis(long, AnalysisOptions(jobs=2), sink=sink)
     assert res.windows == 2 and seen == []
+
+
+def _diagnostics(path: Path) -> dict[str, list[tuple[int, str]]]:
+    """diagnostics.mcap per topic: (log time, content) in log-time order; the row messages
+    decoded without their timing fields (``ms_*``, measured anew by every run), every other
+    message as its bytes."""
+    import math
+    from collections import defaultdict
+
+    from mcap.reader import make_reader
+    from mcap_ros2.decoder import DecoderFactory
+
+    def plain(v: object) -> object:
+        return "nan" if isinstance(v, float) and math.isnan(v) else v
+
+    out: dict[str, list[tuple[int, str]]] = defaultdict(list)
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        for _, ch, m, msg in reader.iter_decoded_messages(log_time_order=False):
+            head = getattr(msg, "header", None)
+            stamp = (head.stamp.sec, head.stamp.nanosec, head.frame_id) if head else None
+            if ch.topic == "/diagnostics":
+                st = msg.status[0]
+                v: object = (stamp, st.level, st.name, st.message, st.hardware_id,
+                             [(k.key, k.value) for k in st.values if not k.key.startswith("ms_")])
+            elif ch.topic.endswith("/metrics"):
+                v = (stamp, [(k, plain(getattr(msg, k))) for k in msg.__slots__
+                             if not k.startswith("ms_") and k != "header"])
+            else:
+                v = bytes(m.data)
+            out[ch.topic].append((m.log_time, repr(v)))
+    return {t: sorted(v) for t, v in out.items()}
+
+
+@pytest.mark.parametrize("source", ["moving", "still", "camera+lidar"])
+def test_a_split_run_writes_the_diagnostics_of_a_serial_run(tmp_path: Path, source: str
+                                                            ) -> None:
+    """With --jobs 2 each window streams its image annotations (the LiDAR task its points)
+    into a part file, merged in window order: diagnostics.mcap holds the messages a
+    single-process run writes, annotations and points byte for byte, the row messages on the
+    recording's log times with its frame ids (timing fields aside). ``still``: the second
+    window's warm-up never meets the first window's keyframes, so it is continued from that
+    window's state, and its first frames' annotations come from the continued run."""
+    from frontdiag.cli import main
+
+    if source == "camera+lidar":
+        path = tmp_path / "corridor.mcap"
+        assert main(["simulate", "dock_corridor", "-o", str(path), "--size", "160x120",
+                     "--lidar", "16x256", "--seconds", "8", "--seed", "2"]) == 0
+    else:
+        path = write_recording(tmp_path / "run.mcap", "mcap", n=150,
+                               shift=1 if source == "moving" else 0)
+    res = {}
+    for jobs in (1, 2):
+        out = tmp_path / f"jobs{jobs}"
+        assert main(["analyze", str(path), "--out", str(out), "-q", "--fail-on", "never",
+                     "--jobs", str(jobs)]) == 0
+        res[jobs] = _diagnostics(out / "diagnostics.mcap")
+    assert run_analysis(path, AnalysisOptions(jobs=2)).windows == 2
+    assert res[1] == res[2]
+    n_cam = 150 if source != "camera+lidar" else 120
+    assert len(res[2]["/frontdiag/camera/annotations"]) == n_cam
+    if source == "camera+lidar":
+        assert len(res[2]["/frontdiag/lidar/used_points"]) == 80
+    assert not list((tmp_path / "jobs2").glob(".frontdiag-parts-*"))  # the parts are gone
+
+
+def test_a_part_merges_the_frames_asked_for(tmp_path: Path) -> None:
+    """A window continued from its neighbour's state until it meets its own first run takes
+    its first frames' annotations from the continued run's part and the rest from its own:
+    a part keeps each annotation's frame index and a merge takes a range of them, with every
+    frame's log time and the topic's frame id."""
+    from types import SimpleNamespace
+
+    from mcap.reader import make_reader
+
+    from frontdiag.records import CameraAnnotation
+    from frontdiag.report.mcap_ import TOPIC_ANNOTATIONS, DiagnosticsWriter
+
+    ann = CameraAnnotation(8, 6, np.zeros((1, 2), np.float32), np.zeros(1, np.uint8),
+                           np.zeros((6, 8), int))
+    part = DiagnosticsWriter(tmp_path / "part.mcap", part=True)
+    with part:
+        for i in range(10):
+            rec = SimpleNamespace(topic="/cam", index=i, log_ns=1000 + i, t_ns=500 + i,
+                                  frame_id="cam_optical")
+            part({}, ann, rec)  # type: ignore[arg-type]
+    out = DiagnosticsWriter(tmp_path / "merged.mcap")
+    with out:
+        out.merge_part(part.part(), (3, 6))
+        out.merge_part(part.part(), (8, None))
+        assert out.log_ns("/cam", 4, 0) == 1004 and out.log_ns("/cam", 9, 0) == 1009
+        assert out._frame_ids == {"/cam": "cam_optical"}
+    with open(tmp_path / "merged.mcap", "rb") as f:
+        got = [(m.log_time, m.sequence) for _, ch, m in make_reader(f).iter_messages(
+            log_time_order=False) if ch.topic == TOPIC_ANNOTATIONS]
+    assert got == [(1003, 0), (1004, 0), (1005, 0), (1006, 0), (1008, 0), (1009, 0)]
 
 
 def test_rules_reading_longer_intervals_raise_the_two_interval_threshold(tmp_path: Path) -> None:

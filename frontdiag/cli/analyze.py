@@ -263,10 +263,6 @@ def analyze_cmd(
     if diag is not None:
         diag.finish(result.table, result.verdicts, result.ruleset)
         written.append(diag.path)
-        if result.windows > 1 and not quiet and not as_json:
-            err.print("[yellow]note[/]: diagnostics.mcap has the per-frame diagnostics and "
-                      "episodes; the image annotations and LiDAR points are written by a "
-                      "single-process run (--jobs 1)")
     if junit is not None and gate_result is not None:
         from frontdiag.report import write_junit
 

@@ -235,13 +235,15 @@ class RecordingWriter:
         msgtype = normalise_msgtype(msgtype)
         self.write_raw(topic, msgtype, self.serialize(msgtype, values), t_ns)
 
-    def write_raw(self, topic: str, msgtype: str, data: bytes, t_ns: int) -> None:
-        """Write already-serialised bytes (used to craft corrupt messages in tests)."""
+    def write_raw(self, topic: str, msgtype: str, data: bytes, t_ns: int,
+                  sequence: int = 0) -> None:
+        """Write already-serialised bytes (also used to craft corrupt messages in tests);
+        ``sequence``: the MCAP message's sequence number (other containers have none)."""
         msgtype = normalise_msgtype(msgtype)
         conn = self._connection(topic, msgtype)
         if self.fmt in ("mcap", "mcap-ros1"):
             self._writer.add_message(channel_id=conn, log_time=int(t_ns), data=data,
-                                     publish_time=int(t_ns))
+                                     publish_time=int(t_ns), sequence=int(sequence))
         else:
             self._writer.write(conn, int(t_ns), data)
 

@@ -26,6 +26,12 @@ fired, and a ``thresholds`` sub-message with each rule threshold as a constant f
 Annotations and points stream out as the frontend produces them (memory stays flat); the
 per-row diagnostics follow once the rules have read the whole table (verdicts need neighbours).
 MCAP does not require messages in time order; readers order them by the index.
+
+With ``analyze --jobs N`` the frames are analysed in other processes: each window streams its
+annotations (or the LiDAR task its points) into a part file of its own
+(:meth:`DiagnosticsWriter.part`), and the writer of the result copies the parts in, in window
+order (:meth:`DiagnosticsWriter.merge_part`), with the log times and frame ids the windows
+read, so the file holds the same messages as a single-process run's.
 """
 
 from __future__ import annotations
@@ -37,10 +43,9 @@ import struct
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
 from frontdiag.io.readers import DIAGNOSTICS_NAME
 from frontdiag.io.writer import stamp as _stamp
@@ -55,6 +60,9 @@ from frontdiag.records import (
     LidarScan,
     ScanAnnotation,
 )
+
+if TYPE_CHECKING:  # pandas is only needed after the pass (a window worker never loads it)
+    import pandas as pd
 
 log = logging.getLogger(__name__)
 
@@ -125,6 +133,17 @@ def _fmt(v: float) -> str:
     return "nan" if not math.isfinite(v) else f"{v:.6g}"
 
 
+@dataclass(frozen=True)
+class DiagnosticsPart:
+    """A window's part of diagnostics.mcap (:meth:`DiagnosticsWriter.part`): the file its
+    annotations went to, and the log times and frame ids of the frames it analysed."""
+
+    path: str
+    log_ns: dict[tuple[str, int], int]
+    frame_ids: dict[str, str]
+    counts: dict[str, int]
+
+
 class DiagnosticsWriter:
     """Streams frames in (``__call__`` is an ``api.FrameSink``), then ``finish(result)``.
 
@@ -133,10 +152,13 @@ class DiagnosticsWriter:
     ...     w.finish(result.table, result.verdicts, result.ruleset)
     """
 
-    def __init__(self, path: Path | str) -> None:
+    def __init__(self, path: Path | str, *, part: bool = False) -> None:
         from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
         self.path = Path(path)
+        self.is_part = part
+        """A window's part file (:meth:`part`): each annotation carries its frame index as the
+        MCAP sequence number, so that a merge can take a frame range from it."""
         self.ts = get_typestore(Stores.ROS2_HUMBLE)
         for name, text in _FOXGLOVE_MSGS.items():
             self.ts.register(get_types_from_msg(text, name))
@@ -183,7 +205,8 @@ class DiagnosticsWriter:
             self._frame_ids.setdefault(record.topic, record.frame_id)
         if isinstance(annotation, CameraAnnotation):
             self._rec.write_raw(TOPIC_ANNOTATIONS, T_ANNOTATIONS,
-                                image_annotations_cdr(annotation, record.t_ns), record.log_ns)
+                                image_annotations_cdr(annotation, record.t_ns), record.log_ns,
+                                sequence=int(record.index) if self.is_part else 0)
             self.counts[TOPIC_ANNOTATIONS] = self.counts.get(TOPIC_ANNOTATIONS, 0) + 1
         elif isinstance(annotation, ScanAnnotation) and isinstance(record, LidarScan):
             frame_id = record.frame_id or "lidar"
@@ -231,6 +254,43 @@ class DiagnosticsWriter:
                 "frame_locked": True}
         return self._msg(T_MARKERS, {"markers": [arrow, text]})
 
+    # -- windows analysed elsewhere: part files -------------------------------------------------
+    def part(self) -> DiagnosticsPart:
+        """What a closed part writer hands to the result's writer (picklable)."""
+        return DiagnosticsPart(str(self.path), dict(self._log_ns), dict(self._frame_ids),
+                               dict(self.counts))
+
+    def merge_part(self, part: DiagnosticsPart, frames: tuple[int, int | None] | None = None
+                   ) -> None:
+        """Copy a part file's messages in, as they were written, and take its log times and
+        frame ids; ``frames`` (first, last or None) keeps only the camera annotations of those
+        frames (a window continued from its neighbour's state has its first frames from that
+        run, the rest from its own)."""
+        from mcap.records import Channel, Message, Schema
+        from mcap.stream_reader import StreamReader
+
+        first, last = frames if frames is not None else (0, None)
+        schemas: dict[int, str] = {}
+        channels: dict[int, tuple[str, str]] = {}
+        with open(part.path, "rb") as f:
+            # record by record, as written: the seeking reader's iter_messages held some
+            # 10 KiB per message (30 000 annotations: 310 MiB); this holds one chunk
+            for rec in StreamReader(f).records:
+                if isinstance(rec, Schema):
+                    schemas[rec.id] = rec.name
+                elif isinstance(rec, Channel):
+                    channels[rec.id] = (rec.topic, schemas.get(rec.schema_id, ""))
+                elif isinstance(rec, Message):
+                    topic, name = channels[rec.channel_id]
+                    if frames is not None and topic == TOPIC_ANNOTATIONS and not (
+                            first <= rec.sequence and (last is None or rec.sequence <= last)):
+                        continue
+                    self._rec.write_raw(topic, name, rec.data, rec.log_time)
+                    self.counts[topic] = self.counts.get(topic, 0) + 1
+        self._log_ns.update(part.log_ns)
+        for topic, frame_id in part.frame_ids.items():
+            self._frame_ids.setdefault(topic, frame_id)
+
     # -- after the rules: per-row diagnostics and metrics, per-episode log ----------------------
     def log_ns(self, topic: str, frame: int, t_ns: int) -> int:
         """The recording's log time of an analysed row (its stamp if it was not streamed)."""
@@ -251,6 +311,8 @@ class DiagnosticsWriter:
         self.close()
 
     def _metric_columns(self, rows: pd.DataFrame, sensor: str) -> list[str]:
+        import pandas as pd
+
         skip = {"frame", "t_ns"}
         cols = []
         for name, m in METRICS.items():
