@@ -25,8 +25,9 @@ Parallel windows (``analyze --jobs N``) on damaged input::
     python benchmarks/fuzz_inputs.py --cases 1 --frames 120 --analyze-jobs 2
 
 runs every case twice, with ``--jobs 2`` and serially, and adds one more class, "jobs N differs
-from serial", for a case whose exit code, frame indices or verdicts differ between the two
-(recordings under 100 frames are never split, hence ``--frames``).
+from serial", for a case whose exit code, frame indices, verdicts or diagnostics.mcap messages
+(topic and log time of each) differ between the two (recordings under 100 frames are never
+split, hence ``--frames``).
 """
 
 from __future__ import annotations
@@ -72,17 +73,39 @@ def _table_key(out: Path) -> tuple[object, ...]:
     return tuple(map(tuple, t[cols].astype(str).to_numpy()))
 
 
+def _diagnostics_key(out: Path) -> tuple[object, ...]:
+    """What diagnostics.mcap must hold whatever the number of workers: every message's topic
+    and log time (the annotations and LiDAR points of every frame, the row messages on the
+    recording's clock), in log-time order per topic."""
+    path = out / "diagnostics.mcap"
+    if not path.exists():
+        return ()
+    from mcap.records import Channel, Message
+    from mcap.stream_reader import StreamReader
+
+    topics: dict[int, str] = {}
+    seen: list[tuple[str, int]] = []
+    with open(path, "rb") as f:
+        for rec in StreamReader(f).records:
+            if isinstance(rec, Channel):
+                topics[rec.id] = rec.topic
+            elif isinstance(rec, Message):
+                seen.append((topics[rec.channel_id], rec.log_time))
+    return tuple(sorted(seen))
+
+
 def run_case(rec: Path, out: Path, timeout: float, analyze_jobs: int = 1,
              rules: bool = False) -> tuple[Outcome, float]:
     """One analyze run on ``rec``; with ``analyze_jobs`` > 1 a ``--jobs`` run with the rules,
-    then the serial run it must equal (the table, the verdicts and the exit code)."""
+    then the serial run it must equal (the table, the verdicts, the exit code and the
+    messages of diagnostics.mcap)."""
     if analyze_jobs > 1:
         par_out = out.with_name(out.name + "-jobs")
         par, seconds = run_case(rec, par_out, timeout, -analyze_jobs, rules=True)
         ser, _ = run_case(rec, out, timeout, rules=True)
         if (par.klass in GOOD and ser.klass in GOOD
-                and (par.code, par.rows, _table_key(par_out))
-                != (ser.code, ser.rows, _table_key(out))):
+                and (par.code, par.rows, _table_key(par_out), _diagnostics_key(par_out))
+                != (ser.code, ser.rows, _table_key(out), _diagnostics_key(out))):
             return Outcome(par.code, par.rows, f"{DIFFERS}: exit {par.code} vs {ser.code}, "
                            f"{par.rows} vs {ser.rows} rows", par.changed, str(rec),
                            forced=DIFFERS), seconds
