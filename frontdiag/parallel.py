@@ -28,7 +28,7 @@ import multiprocessing as mp
 import shutil
 import tempfile
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import Future, ProcessPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
@@ -51,6 +51,7 @@ log = logging.getLogger(__name__)
 
 OVERLAP_KEYFRAMES = 3  # warm-up length in keyframe intervals (kf_max_frames frames each)
 MIN_WINDOW_FRAMES = 50  # below this per window, one process is faster than the warm-ups
+PROGRESS_POLL_S = 0.2  # how often a split run's progress bar reads the windows' counters
 
 
 def plan_windows(n_frames: int, jobs: int, overlap: int) -> list[FrameWindow]:
@@ -98,11 +99,19 @@ def prestart(preload: Sequence[str] = WINDOW_PRELOAD) -> None:
         log.debug("worker server not started early: %s", exc)
 
 
-def worker_init() -> None:
+_PROGRESS: Any = None
+"""In a window worker: the shared counters its tasks report frames analysed into (one slot a
+task, :func:`_run_windows`), or None."""
+
+
+def worker_init(progress: Any = None) -> None:
     """Pool workers ignore Ctrl-C while they wait for a task (an idle worker has nothing to
-    keep and would only print a traceback); :func:`interruptible` re-arms it for a task."""
+    keep and would only print a traceback); :func:`interruptible` re-arms it for a task.
+    ``progress``: shared counters for the tasks' frame counts (a window run's progress bar)."""
     import signal
 
+    global _PROGRESS
+    _PROGRESS = progress
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
@@ -253,10 +262,16 @@ def window_overlap(params: Any, stride: int = 1) -> int:
 
 def _task(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
           frames: FrameWindow | None, resume: Any = None, until_keys: dict[int, Any] | None = None,
-          part: str | None = None) -> StreamRun:
+          part: str | None = None, slot: int | None = None) -> StreamRun:
     """One window (or the whole LiDAR stream) in a worker process; ``part``: a file for the
-    annotations of the frames it analyses (its part of diagnostics.mcap, ``StreamRun.part``)."""
+    annotations of the frames it analyses (its part of diagnostics.mcap, ``StreamRun.part``);
+    ``slot``: where in the worker's shared counters it reports the frames it has analysed."""
     until = None if until_keys is None else (lambda f, key: until_keys.get(f) == key)
+    counters = _PROGRESS
+    progress = None
+    if slot is not None and counters is not None:
+        def progress(done: int, expected: int | None) -> None:
+            counters[slot] = done
     sink = None
     if part is not None:
         from frontdiag.report.mcap_ import DiagnosticsWriter
@@ -267,7 +282,7 @@ def _task(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
         with interruptible(), one_core(), open_recording(path) as rec:
             run = run_stream(rec, choice, opts, intr, frames=frames, resume=resume, until=until,
                              record_keys=frames is not None,
-                             want_end_state=frames is not None, sink=sink)
+                             want_end_state=frames is not None, sink=sink, progress=progress)
             reader_fault(path, rec, run)
     finally:
         if sink is not None:
@@ -337,27 +352,42 @@ def _run_windows(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | 
     runs: list[StreamRun | None] = [None] * len(windows)
     lid_run: StreamRun | None = None
     interrupted = False
-    pool = ProcessPoolExecutor(max_workers=opts.jobs, mp_context=_context(),
-                               initializer=worker_init)
+    ctx = _context()
+    # each task reports the frames it has analysed into its slot (the LiDAR task the last), so
+    # the progress bar moves while the windows run, not only as each one ends
+    counters = ctx.RawArray("q", len(windows) + 1)
+    pool = ProcessPoolExecutor(max_workers=opts.jobs, mp_context=ctx,
+                               initializer=worker_init, initargs=(counters,))
     futs: dict[Future[StreamRun], int] = {
-        pool.submit(_task, path, cam_choice, opts, intr, w, part=_part(parts_dir, f"window{i}")):
-            i for i, w in enumerate(windows)}
+        pool.submit(_task, path, cam_choice, opts, intr, w, part=_part(parts_dir, f"window{i}"),
+                    slot=i): i for i, w in enumerate(windows)}
     lid_fut = pool.submit(_task, path, lid_choice, opts, intr, None,
-                          part=_part(parts_dir, "lidar")) if choice.lidar else None
+                          part=_part(parts_dir, "lidar"),
+                          slot=len(windows)) if choice.lidar else None
     all_futs: list[Future[StreamRun]] = [*futs, *([lid_fut] if lid_fut else [])]
-    done = 0
+    # a window's first frames are its warm-up: not rows, not counted
+    warm = [-(-(w.own_from - w.warm_from) // max(opts.stride, 1)) for w in windows] + [0]
+    rows_of: dict[int, int] = {}  # slot -> rows of a finished task
+    shown = 0
     try:
-        from concurrent.futures import as_completed
-
-        for fut in as_completed(all_futs):
-            run = fut.result()
-            if fut is lid_fut:
-                lid_run = run
-            else:
-                runs[futs[fut]] = run
-            done += len(run.rows)
+        pending = set(all_futs)
+        while pending:
+            finished, pending = wait(pending, timeout=PROGRESS_POLL_S, return_when=FIRST_COMPLETED)
+            for fut in finished:
+                run = fut.result()
+                if fut is lid_fut:
+                    lid_run = run
+                    rows_of[len(windows)] = len(run.rows)
+                else:
+                    runs[futs[fut]] = run
+                    rows_of[futs[fut]] = len(run.rows)
             if progress:
-                progress(done, expected or None)
+                live = sum(rows_of[i] if i in rows_of else max(0, counters[i] - warm[i])
+                           for i in range(len(warm)))
+                if expected:
+                    live = min(live, expected)
+                shown = max(shown, live)  # never backwards
+                progress(shown, expected or None)
     except KeyboardInterrupt:
         # Each window's worker keeps the frames it analysed before the interruption (as one
         # pass would): collect them, so the windows up to the interrupted one are kept.

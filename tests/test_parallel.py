@@ -202,6 +202,26 @@ def test_a_part_merges_the_frames_asked_for(tmp_path: Path) -> None:
     assert got == [(1003, 0), (1004, 0), (1005, 0), (1006, 0), (1008, 0), (1009, 0)]
 
 
+def test_a_split_run_reports_progress_while_its_windows_run(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Each window reports the frames it has analysed (warm-up aside) as it goes: the bar moves
+    while the windows run (reporting only as each window ended gave one value between 0 and
+    the total), never goes back, never passes the total, and ends on it."""
+    import frontdiag.parallel
+
+    monkeypatch.setattr(frontdiag.parallel, "PROGRESS_POLL_S", 0.02)
+    n = 600
+    path = write_recording(tmp_path / "run.mcap", "mcap", n=n)
+    seen: list[tuple[int, int | None]] = []
+    res = run_analysis(path, AnalysisOptions(jobs=2),
+                       progress=lambda done, expected: seen.append((done, expected)))
+    assert res.windows == 2 and len(res.table) == n
+    done = [d for d, _ in seen]
+    assert done == sorted(done) and done[-1] == n and max(done) <= n
+    assert {e for _, e in seen} == {n}
+    assert len({d for d in done if 0 < d < n}) >= 3, done
+
+
 def test_rules_reading_longer_intervals_raise_the_two_interval_threshold(tmp_path: Path) -> None:
     from frontdiag.api import _read_intervals_for
     from frontdiag.verdicts import load_ruleset
@@ -242,19 +262,17 @@ def test_interrupted_windows_keep_the_frames_before_the_interruption(
     # interrupted at the same frame (the recording's own baselines are read over the same
     # rows), but for the span readings of its last rows where the interruption fell just
     # after a window that had finished (_same_but_the_drained_spans).
-    import concurrent.futures
-
+    import frontdiag.parallel
     from frontdiag.camera import frontend
 
     path = write_recording(tmp_path / "run.mcap", "mcap", n=150, shift=1)
     whole = run_analysis(path, AnalysisOptions())
 
-    def interrupted_wait(fs, timeout=None):  # type: ignore[no-untyped-def]
-        raise KeyboardInterrupt
-        yield  # a generator, like the real one
+    def interrupted_wait(fs, timeout=None, return_when=None):  # type: ignore[no-untyped-def]
+        raise KeyboardInterrupt  # where the main process waits for its windows
 
     with monkeypatch.context() as m:
-        m.setattr(concurrent.futures, "as_completed", interrupted_wait)
+        m.setattr(frontdiag.parallel, "wait", interrupted_wait)
         par = run_analysis(path, AnalysisOptions(jobs=2))
     assert par.interrupted
     kept = len(par.table)
