@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing as mp
+import os
 import shutil
 import tempfile
 from collections.abc import Callable, Iterator, Sequence
@@ -332,13 +333,42 @@ def run_windows(path: Path, rec: Recording, choice: TopicChoice, opts: Any,
     merge = sink.merge_part if isinstance(sink, DiagnosticsWriter) else None
     parts_dir = None
     if isinstance(sink, DiagnosticsWriter):
-        parts_dir = Path(tempfile.mkdtemp(prefix=".frontdiag-parts-", dir=sink.path.parent))
+        remove_stale_parts(sink.path.parent)
+        parts_dir = Path(tempfile.mkdtemp(prefix=f"{PARTS_PREFIX}{os.getpid()}-",
+                                          dir=sink.path.parent))
     try:
         return _run_windows(path, choice, opts, intr, windows, cam_choice, lid_choice,
                             progress, expected, parts_dir, merge)
     finally:
         if parts_dir is not None:
             shutil.rmtree(parts_dir, ignore_errors=True)
+
+
+PARTS_PREFIX = ".frontdiag-parts-"
+"""The folder a split run writes its parts of diagnostics.mcap to, beside the result:
+``.frontdiag-parts-<pid of the run>-<random>``, removed when the run ends."""
+
+
+def remove_stale_parts(folder: Path) -> None:
+    """Remove the part folders that runs killed outright (SIGKILL, a power cut: no ``finally``
+    ran) left in ``folder``: those whose run's process is gone. A folder of a run still going
+    (another process writing into the same result folder) is left alone."""
+    if os.name != "posix":  # signal 0 probes a process only on POSIX
+        return
+    for d in folder.glob(f"{PARTS_PREFIX}*"):
+        try:
+            pid = int(d.name[len(PARTS_PREFIX):].split("-", 1)[0])
+        except ValueError:
+            continue
+        if pid == os.getpid():
+            continue
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            log.info("removing %s, left by a run that was killed", d)
+            shutil.rmtree(d, ignore_errors=True)
+        except OSError:  # alive, another user's
+            continue
 
 
 def _part(parts_dir: Path | None, name: str) -> str | None:

@@ -170,6 +170,35 @@ def test_a_split_run_writes_the_diagnostics_of_a_serial_run(tmp_path: Path, sour
     assert not list((tmp_path / "jobs2").glob(".frontdiag-parts-*"))  # the parts are gone
 
 
+def test_a_killed_runs_parts_are_removed_by_the_next_run(tmp_path: Path) -> None:
+    """A split run killed outright (SIGKILL: no ``finally`` runs) leaves its part folder; the
+    next split run into that folder removes it, and leaves the folder of a run still going."""
+    import os
+    import signal
+
+    from frontdiag.cli import main
+
+    path = write_recording(tmp_path / "run.mcap", "mcap", n=150)
+    out = tmp_path / "res"
+    out.mkdir()
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()  # a process that has ended: its pid names a killed run's folder
+    stale = out / f".frontdiag-parts-{gone.pid}-x1"
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        running = out / f".frontdiag-parts-{live.pid}-x2"
+        for d in (stale, running):
+            d.mkdir()
+            (d / "window0.mcap").write_bytes(b"")
+        assert main(["analyze", str(path), "--out", str(out), "-q", "--fail-on", "never",
+                     "--jobs", "2", "--force"]) == 0
+        assert not stale.exists() and running.exists()
+        assert sorted(p.name for p in out.glob(".frontdiag-parts-*")) == [running.name]
+    finally:
+        os.kill(live.pid, signal.SIGKILL)
+        live.wait()
+
+
 def test_a_part_merges_the_frames_asked_for(tmp_path: Path) -> None:
     """A window continued from its neighbour's state until it meets its own first run takes
     its first frames' annotations from the continued run's part and the rest from its own:
