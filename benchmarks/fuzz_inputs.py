@@ -80,17 +80,10 @@ def _diagnostics_key(out: Path) -> tuple[object, ...]:
     path = out / "diagnostics.mcap"
     if not path.exists():
         return ()
-    from mcap.records import Channel, Message
-    from mcap.stream_reader import StreamReader
+    from frontdiag.io.readers import stream_mcap
 
-    topics: dict[int, str] = {}
-    seen: list[tuple[str, int]] = []
     with open(path, "rb") as f:
-        for rec in StreamReader(f).records:
-            if isinstance(rec, Channel):
-                topics[rec.id] = rec.topic
-            elif isinstance(rec, Message):
-                seen.append((topics[rec.channel_id], rec.log_time))
+        seen = [(channel.topic, msg.log_time) for _, channel, msg in stream_mcap(f, None)]
     return tuple(sorted(seen))
 
 

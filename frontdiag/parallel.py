@@ -28,12 +28,12 @@ import multiprocessing as mp
 import os
 import shutil
 import tempfile
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from frontdiag.io.readers import Recording, damage_hint, open_recording, without_path
 from frontdiag.io.topics import TopicChoice
@@ -47,6 +47,9 @@ from frontdiag.runner import (
     TopicStats,
     run_stream,
 )
+
+if TYPE_CHECKING:
+    from frontdiag.report.mcap_ import DiagnosticsWriter
 
 log = logging.getLogger(__name__)
 
@@ -330,15 +333,15 @@ def run_windows(path: Path, rec: Recording, choice: TopicChoice, opts: Any,
     # it, merged in below (other sinks are not called for frames analysed elsewhere)
     from frontdiag.report.mcap_ import DiagnosticsWriter
 
-    merge = sink.merge_part if isinstance(sink, DiagnosticsWriter) else None
+    diag = sink if isinstance(sink, DiagnosticsWriter) else None
     parts_dir = None
-    if isinstance(sink, DiagnosticsWriter):
-        remove_stale_parts(sink.path.parent)
+    if diag is not None:
+        remove_stale_parts(diag.path.parent)
         parts_dir = Path(tempfile.mkdtemp(prefix=f"{PARTS_PREFIX}{os.getpid()}-",
-                                          dir=sink.path.parent))
+                                          dir=diag.path.parent))
     try:
         return _run_windows(path, choice, opts, intr, windows, cam_choice, lid_choice,
-                            progress, expected, parts_dir, merge)
+                            progress, expected, parts_dir, diag)
     finally:
         if parts_dir is not None:
             shutil.rmtree(parts_dir, ignore_errors=True)
@@ -378,7 +381,7 @@ def _part(parts_dir: Path | None, name: str) -> str | None:
 def _run_windows(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
                  windows: list[FrameWindow], cam_choice: TopicChoice, lid_choice: TopicChoice,
                  progress: ProgressFn | None, expected: int | None, parts_dir: Path | None,
-                 merge: Callable[..., None] | None) -> StreamRun:
+                 diag: DiagnosticsWriter | None) -> StreamRun:
     runs: list[StreamRun | None] = [None] * len(windows)
     lid_run: StreamRun | None = None
     interrupted = False
@@ -433,11 +436,11 @@ def _run_windows(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | 
         pool.shutdown(wait=not interrupted, cancel_futures=interrupted)
     cam_rows, cam_stream, fault, cut, parts = _stitch(path, cam_choice, opts, intr, windows,
                                                       runs, parts_dir)
-    if merge is not None:
+    if diag is not None:
         for part, frames in parts:
-            merge(part, frames)
+            diag.merge_part(part, frames)
         if lid_run is not None and lid_run.part is not None:
-            merge(lid_run.part)
+            diag.merge_part(lid_run.part)
     rows = list(cam_rows)
     lid_stream = None
     if lid_run is not None:

@@ -180,11 +180,9 @@ def build_explanation(result_dir: Path, frame: int | None, t: float | None,
     from frontdiag.verdicts.explain import explain_row
 
     if not result_dir.exists():
-        import re
+        from frontdiag.verdicts.model import looks_like_rule_id
 
-        from frontdiag.verdicts.model import RULE_ID_PATTERN
-
-        if re.match(RULE_ID_PATTERN, str(result_dir).upper()):
+        if looks_like_rule_id(str(result_dir)):
             # `explain FD-PLN-001`: a rule, not a run
             raise ConfigError(f"{result_dir}: no such file or directory; it reads as a rule ID",
                               hint=f"a rule's text and thresholds: `frontdiag rules explain "

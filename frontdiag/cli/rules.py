@@ -40,11 +40,9 @@ class _RulesGroup(TyperGroup):
     the subcommand goes is what a user who wants the rule's text types first."""
 
     def resolve_command(self, ctx: Any, args: list[str]) -> Any:
-        import re
+        from frontdiag.verdicts.model import looks_like_rule_id
 
-        from frontdiag.verdicts.model import RULE_ID_PATTERN
-
-        if args and args[0] not in self.commands and re.match(RULE_ID_PATTERN, args[0].upper()):
+        if args and args[0] not in self.commands and looks_like_rule_id(args[0]):
             args = ["explain", *args]
         return super().resolve_command(ctx, args)
 

@@ -375,7 +375,7 @@ class McapRecording(_Base):
         # No summary: one streaming pass to learn channels, counts and the time span.
         n = 0
         try:
-            for schema, ch, msg in _stream_mcap(self._fh, None):
+            for schema, ch, msg in stream_mcap(self._fh, None):
                 name = schema.name if schema else ""
                 self._channels.setdefault(ch.topic, (normalise_msgtype(name), ch.message_encoding))
                 self._counts[ch.topic] = self._counts.get(ch.topic, 0) + 1
@@ -401,7 +401,7 @@ class McapRecording(_Base):
                 it = self._reader.iter_messages(topics=wanted, starting_at=start_ns,
                                                 ending_at=end_ns)
             else:  # no summary, or an unchunked file: in file order, up to any damage
-                it = _stream_mcap(self._fh, set(wanted))
+                it = stream_mcap(self._fh, set(wanted))
             for schema, ch, msg in it:
                 t = int(msg.log_time)
                 if (start_ns is not None and t < start_ns) or (end_ns is not None and t > end_ns):
@@ -467,8 +467,9 @@ class McapRecording(_Base):
             fh.close()
 
 
-def _stream_mcap(fh: Any, topics: set[str] | None) -> Iterator[tuple[Any, Any, Any]]:
-    """(schema, channel, message) in file order, raising at the first damaged record.
+def stream_mcap(fh: Any, topics: set[str] | None) -> Iterator[tuple[Any, Any, Any]]:
+    """(schema, channel, message) in file order, raising at the first damaged record; holds
+    one chunk at a time (the seeking reader's ``iter_messages`` held about 10 KiB a message).
 
     Unlike the mcap package's own streaming reader it stops at opcode 0 (never a valid record:
     the zeros a preallocating recorder leaves) instead of skipping 9 bytes at a time through

@@ -141,7 +141,6 @@ class DiagnosticsPart:
     path: str
     log_ns: dict[tuple[str, int], int]
     frame_ids: dict[str, str]
-    counts: dict[str, int]
 
 
 class DiagnosticsWriter:
@@ -257,8 +256,7 @@ class DiagnosticsWriter:
     # -- windows analysed elsewhere: part files -------------------------------------------------
     def part(self) -> DiagnosticsPart:
         """What a closed part writer hands to the result's writer (picklable)."""
-        return DiagnosticsPart(str(self.path), dict(self._log_ns), dict(self._frame_ids),
-                               dict(self.counts))
+        return DiagnosticsPart(str(self.path), dict(self._log_ns), dict(self._frame_ids))
 
     def merge_part(self, part: DiagnosticsPart, frames: tuple[int, int | None] | None = None
                    ) -> None:
@@ -266,27 +264,17 @@ class DiagnosticsWriter:
         frame ids; ``frames`` (first, last or None) keeps only the camera annotations of those
         frames (a window continued from its neighbour's state has its first frames from that
         run, the rest from its own)."""
-        from mcap.records import Channel, Message, Schema
-        from mcap.stream_reader import StreamReader
+        from frontdiag.io.readers import stream_mcap
 
         first, last = frames if frames is not None else (0, None)
-        schemas: dict[int, str] = {}
-        channels: dict[int, tuple[str, str]] = {}
         with open(part.path, "rb") as f:
-            # record by record, as written: the seeking reader's iter_messages held some
-            # 10 KiB per message (30 000 annotations: 310 MiB); this holds one chunk
-            for rec in StreamReader(f).records:
-                if isinstance(rec, Schema):
-                    schemas[rec.id] = rec.name
-                elif isinstance(rec, Channel):
-                    channels[rec.id] = (rec.topic, schemas.get(rec.schema_id, ""))
-                elif isinstance(rec, Message):
-                    topic, name = channels[rec.channel_id]
-                    if frames is not None and topic == TOPIC_ANNOTATIONS and not (
-                            first <= rec.sequence and (last is None or rec.sequence <= last)):
-                        continue
-                    self._rec.write_raw(topic, name, rec.data, rec.log_time)
-                    self.counts[topic] = self.counts.get(topic, 0) + 1
+            for schema, channel, msg in stream_mcap(f, None):  # record by record, as written
+                if frames is not None and channel.topic == TOPIC_ANNOTATIONS and not (
+                        first <= msg.sequence and (last is None or msg.sequence <= last)):
+                    continue
+                self._rec.write_raw(channel.topic, schema.name if schema else "", msg.data,
+                                    msg.log_time)
+                self.counts[channel.topic] = self.counts.get(channel.topic, 0) + 1
         self._log_ns.update(part.log_ns)
         for topic, frame_id in part.frame_ids.items():
             self._frame_ids.setdefault(topic, frame_id)

@@ -99,6 +99,13 @@ class RuleText(_Strict):
 
 
 RULE_ID_PATTERN = r"^[A-Z][A-Z0-9]{1,15}(-[A-Z0-9]{1,15})*-\d{3}$"
+
+
+def looks_like_rule_id(text: str) -> bool:
+    """Whether ``text`` (any case) has the shape of a rule ID (FD-PLN-001, MY-001)."""
+    import re
+
+    return re.match(RULE_ID_PATTERN, text.upper()) is not None
 """NAMESPACE(-AREA)-NNN: the shipped rules use FD-XXX-NNN; a team's own rules take their own
 namespace (MY-001, ACME-DOCK-002), so they never collide with a shipped ID."""
 
