@@ -44,6 +44,7 @@ from frontdiag.io.readers import (
 from frontdiag.io.topics import TopicChoice, choose_topics
 from frontdiag.metrics import CAMERA_COLUMNS, LIDAR_COLUMNS
 from frontdiag.records import GAP_STATUS, SIZE_STATUS, Intrinsics
+from frontdiag.rowstore import RowStore
 from frontdiag.runner import (
     FrameSink,
     ProgressFn,
@@ -516,13 +517,13 @@ def _nothing_analysed(coverage: dict[str, dict[str, Any]], counts: dict[str, int
     return None
 
 
-def _table(rows: list[dict[str, Any]]) -> pd.DataFrame:
-    """Rows in time order with the contract columns first."""
+def _table(rows: RowStore) -> pd.DataFrame:
+    """Rows in time order with the contract columns first (the store emptied)."""
     lead = list(dict.fromkeys(["frame", "t_ns", "t_rel_s", "sensor", "topic",
                                *CAMERA_COLUMNS, *LIDAR_COLUMNS]))
-    if not rows:
+    if not len(rows):
         return pd.DataFrame(columns=lead)
-    df = pd.DataFrame.from_records(rows)
+    df = rows.frame()
     for col in lead:
         if col not in df.columns:
             df[col] = np.nan

@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, Any
 from frontdiag.io.readers import Recording, damage_hint, open_recording, without_path
 from frontdiag.io.topics import TopicChoice
 from frontdiag.records import Intrinsics
+from frontdiag.rowstore import RowStore
 from frontdiag.runner import (
     FrameSink,
     FrameWindow,
@@ -441,10 +442,10 @@ def _run_windows(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | 
             diag.merge_part(part, frames)
         if lid_run is not None and lid_run.part is not None:
             diag.merge_part(lid_run.part)
-    rows = list(cam_rows)
+    rows = cam_rows
     lid_stream = None
     if lid_run is not None:
-        rows += lid_run.rows
+        rows.extend(lid_run.rows)
         lid_stream = lid_run.lid
         fault = fault or lid_run.fault
         interrupted = interrupted or lid_run.interrupted
@@ -460,7 +461,7 @@ Parts = list[tuple[Any, "tuple[int, int | None] | None"]]
 def _stitch(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
             windows: list[FrameWindow], runs: list[StreamRun | None],
             parts_dir: Path | None = None
-            ) -> tuple[list[dict[str, Any]], SensorStream | None, Any, bool, Parts]:
+            ) -> tuple[RowStore, SensorStream | None, Any, bool, Parts]:
     """Camera rows and counts of consecutive windows, in order, as one pass would give them,
     and the windows' parts of diagnostics.mcap that hold the same frames.
 
@@ -470,7 +471,7 @@ def _stitch(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
     is seen when the file is opened) lies beyond that window: the next windows go on, and the
     damage is the pass's fault at the end, as in one pass.
     """
-    rows: list[dict[str, Any]] = []
+    rows = RowStore()
     parts: Parts = []
     merged: SensorStream | None = None
     prev: StreamRun | None = None
@@ -484,7 +485,7 @@ def _stitch(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
             parts += window_parts
         elif run.part is not None:
             parts.append((run.part, None))
-        rows += run.rows
+        rows.extend(run.rows)
         merged = _merge_counts(merged, run.cam)
         if run.interrupted or (run.fault is not None and not _read_whole(run, w)):
             return rows, merged, run.fault, run.interrupted, parts
@@ -520,7 +521,8 @@ def _rerun(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
     if fix.stopped_at is None:  # never met: the continued run is the window
         fix.cam = first.cam  # counts do not depend on the frontend's state
         return fix, ([(fix.part, None)] if fix.part is not None else [])
-    rows = fix.rows + [r for r in first.rows if r["frame"] > fix.stopped_at]
+    rows = fix.rows
+    rows.extend(first.rows.after_frame(fix.stopped_at))
     parts: Parts = []
     if fix.part is not None and first.part is not None:
         parts = [(fix.part, (0, fix.stopped_at)), (first.part, (fix.stopped_at + 1, None))]

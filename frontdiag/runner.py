@@ -35,6 +35,7 @@ from frontdiag.io.readers import Recording
 from frontdiag.io.tf import TfOdometry
 from frontdiag.io.topics import TopicChoice
 from frontdiag.records import GAP_STATUS, CameraFrame, Intrinsics, LidarScan
+from frontdiag.rowstore import RowStore
 from frontdiag.timing import GapDetector
 
 log = logging.getLogger(__name__)
@@ -291,7 +292,7 @@ def iter_camera_frames(rec: Recording, topic: str, msgtype: str, opts: Any = Non
 class StreamRun:
     """What one pass of :func:`run_stream` produced."""
 
-    rows: list[dict[str, Any]]
+    rows: RowStore
     cam: SensorStream | None
     lid: SensorStream | None
     fault: FrontdiagError | None = None
@@ -427,10 +428,11 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
     ``frames`` restricts the camera to a window of frames (warm-up rows dropped); ``resume``
     starts the camera frontend from a hand-over state (:func:`camera_state`); ``until(frame,
     key)`` stops the pass after a camera frame; ``record_keys`` keeps the camera state key after
-    every frame; ``sink`` sees each row kept, with what the frontend drew it from. Faults and
-    Ctrl-C end the pass and keep what was computed.
+    every frame; ``sink`` sees each row kept, with what the frontend drew it from. The rows that
+    can no longer change are packed as the pass goes (:class:`~frontdiag.rowstore.RowStore`).
+    Faults and Ctrl-C end the pass and keep what was computed.
     """
-    rows: list[dict[str, Any]] = []
+    rows = RowStore()
     cam_front = lid_front = None
     cam_stream = lid_stream = None
     conv = None
@@ -474,16 +476,20 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
                                     or s is not None):
         feed_from = video_feed_start(rec, choice.camera, frames.warm_from if frames else 0, s)
     done = 0
-    by_frame: dict[int, dict[str, Any]] = {}  # owned camera rows, for completions
+    by_frame: dict[int, int] = {}  # owned camera rows' positions, for completions
 
     def complete() -> None:
         assert cam_front is not None
         for f, values in cam_front.take_updates():
-            row = by_frame.get(f)
-            if row is None:  # a warm-up row, not part of this run's table
+            pos = by_frame.get(f)
+            if pos is None:  # a warm-up row, not part of this run's table
                 continue
-            for k, v in values.items():
-                row[k] = row.get(k, 0.0) + v if k.startswith("ms_") else v
+            rows.update(pos, values)
+        settle()
+
+    def settle() -> None:
+        if cam_front is None or not cam_front.pending:  # no row made so far can change
+            rows.settled()
 
     # Odometry for a sweep's middle is usually logged after the sweep itself, and the prior
     # never extrapolates: hold decoded scans until odometry covers them (or stops coming).
@@ -504,6 +510,7 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
                 return
             pending.popleft()
             rows.append(lid_stream.analyse(scan, lid_front, "lidar", rec_start))
+            settle()
 
     with frame_boundary_interrupts() as stop_asked:
         try:
@@ -556,8 +563,7 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
                         continue
                     row = cam_stream.analyse(frame, cam_front, "camera", rec_start)
                     if cam_stream.owned:
-                        rows.append(row)
-                        by_frame[frame.index] = row
+                        by_frame[frame.index] = rows.append(row)
                     # after the row is registered: a frame that closes its keyframe interval
                     # completes readings of its own row too (it is that interval's last frame)
                     complete()
@@ -596,6 +602,7 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
                         release(raw.log_ns)
                     else:
                         rows.append(lid_stream.analyse(scan, lid_front, "lidar", rec_start))
+                        settle()
                 else:
                     continue
                 done += 1

@@ -568,8 +568,9 @@ def test_a_window_asked_to_stop_in_its_read_on_still_completes_its_rows(
         asked = _task(path, choice, opts, intr, first)
     assert asked.interrupted
     assert max(seen) > first.own_to  # the read-on went past the frame the signal landed on
-    assert [r["frame"] for r in asked.rows] == list(range(first.own_to))
-    _same_table(pd.DataFrame(calm.rows), pd.DataFrame(asked.rows))
+    got = asked.rows.frame()
+    assert got["frame"].tolist() == list(range(first.own_to))
+    _same_table(calm.rows.frame(), got)
 
 
 _MALLINFO_PROBE = """
