@@ -142,7 +142,7 @@ def guarded_write(path: Path, write: Callable[[], Any]) -> Any:
 
 
 def _csv_frame(table: pd.DataFrame) -> pd.DataFrame:
-    df = table.copy()
+    df = table.copy(deep=False)
     for col in LIST_COLUMNS:
         if col in df.columns:
             df[col] = df[col].map(lambda v: ";".join(v) if isinstance(v, list | tuple | np.ndarray)
@@ -157,7 +157,7 @@ def _csv_frame(table: pd.DataFrame) -> pd.DataFrame:
 
 def write_table(out: Path, table: pd.DataFrame, csv: bool = False) -> list[Path]:
     written = [out / "frames.parquet"]
-    df = table.copy()
+    df = table.copy(deep=False)  # the columns converted below are replaced, not written into
     # mixed object columns (strings with NaN) must be strings for parquet
     for col in df.columns:
         if col in VECTOR_COLUMNS:

@@ -62,6 +62,27 @@ def test_csv_output_and_terminal_summary(tmp_path: Path,
     assert "latency (ms)" in stdout
 
 
+def test_writing_the_result_leaves_the_table_as_it_was(tmp_path: Path) -> None:
+    """The outputs convert list, vector and mixed columns on a shallow copy: the table handed
+    to diagnostics.mcap's writer and to API callers keeps its lists and None."""
+    from frontdiag.api import AnalysisOptions, run_analysis
+    from frontdiag.output import write_table
+
+    sample = Path(__file__).resolve().parents[1] / "sample_logs" / "dock_corridor.mcap"
+    table = run_analysis(sample, AnalysisOptions()).table
+    # a column of mixed objects, as a caller may add: written as strings
+    table["note"] = pd.Series([1.5 if i % 3 else "x" for i in range(len(table))], dtype=object)
+    table.loc[0, "note"] = np.nan
+    before = table.copy(deep=True)
+    assert table["lidar_weak_vec"].map(lambda v: isinstance(v, list)).any()
+    assert table["rules"].map(lambda v: isinstance(v, list)).all()
+    write_table(tmp_path, table, csv=True)
+    pd.testing.assert_frame_equal(table, before)
+    back = pd.read_parquet(tmp_path / "frames.parquet")
+    assert pd.isna(back["note"].iloc[0]) and back["note"].tolist()[1:4] == ["1.5", "1.5", "x"]
+    assert len(back) == len(table) and (tmp_path / "frames.csv").exists()
+
+
 def test_json_summary_on_stdout(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     log = write_recording(tmp_path / "run.mcap", "mcap", n=4)
     code, stdout, _ = run(["analyze", str(log), "--json"], capsys)
