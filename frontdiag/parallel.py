@@ -337,7 +337,6 @@ def run_windows(path: Path, rec: Recording, choice: TopicChoice, opts: Any,
     diag = sink if isinstance(sink, DiagnosticsWriter) else None
     parts_dir = None
     if diag is not None:
-        remove_stale_parts(diag.path.parent)
         parts_dir = Path(tempfile.mkdtemp(prefix=f"{PARTS_PREFIX}{os.getpid()}-",
                                           dir=diag.path.parent))
     try:

@@ -170,9 +170,11 @@ def test_a_split_run_writes_the_diagnostics_of_a_serial_run(tmp_path: Path, sour
     assert not list((tmp_path / "jobs2").glob(".frontdiag-parts-*"))  # the parts are gone
 
 
-def test_a_killed_runs_parts_are_removed_by_the_next_run(tmp_path: Path) -> None:
+@pytest.mark.parametrize("jobs", [2, 1])
+def test_a_killed_runs_parts_are_removed_by_the_next_run(tmp_path: Path, jobs: int) -> None:
     """A split run killed outright (SIGKILL: no ``finally`` runs) leaves its part folder; the
-    next split run into that folder removes it, and leaves the folder of a run still going."""
+    next run into that folder, split or not, removes it, and leaves the folder of a run still
+    going."""
     import os
     import signal
 
@@ -191,7 +193,7 @@ def test_a_killed_runs_parts_are_removed_by_the_next_run(tmp_path: Path) -> None
             d.mkdir()
             (d / "window0.mcap").write_bytes(b"")
         assert main(["analyze", str(path), "--out", str(out), "-q", "--fail-on", "never",
-                     "--jobs", "2", "--force"]) == 0
+                     "--jobs", str(jobs), "--force"]) == 0
         assert not stale.exists() and running.exists()
         assert sorted(p.name for p in out.glob(".frontdiag-parts-*")) == [running.name]
     finally:

@@ -240,6 +240,9 @@ def analyze_cmd(
 
         diag = DiagnosticsWriter(out_dir / DIAGNOSTICS_FILE)
         diag.open()
+        from frontdiag.parallel import remove_stale_parts
+
+        remove_stale_parts(out_dir)  # left by a split run killed outright, whatever this run is
     try:
         result = _run_with_progress(log, opts, err, show=not quiet and not as_json, sink=diag)
     except BaseException as exc:
