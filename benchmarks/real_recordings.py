@@ -39,6 +39,8 @@ SOURCES = {
                     (458.654, 457.296, 367.215, 248.375), rate_hz=20.0),
     "tum720": Source("tum 1280x720 (2x)", ("tum_fr3_long_office_17f/rgb/*.png",),
                      (1070.8, 1078.4, 640.2, 375.2), size=(1280, 720), rate_hz=30.0),
+    "tum160": Source("tum 160x120 (1/4)", ("tum_fr3_long_office_17f/rgb/*.png",),
+                     (133.85, 134.8, 80.0, 61.9), size=(160, 120), rate_hz=30.0),
 }
 
 
