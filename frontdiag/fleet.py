@@ -18,8 +18,9 @@ import json
 import logging
 import time
 from collections.abc import Callable, Iterable
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor
 from dataclasses import asdict, dataclass, replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -159,16 +160,25 @@ class Task:
     force: bool = False
 
 
-def analyse_one(task: Task) -> dict[str, Any]:
+def analyse_one(task: Task, slot: int | None = None,
+                progress: Callable[[int, int | None], None] | None = None) -> dict[str, Any]:
     """Analyse one recording into its result folder and return its summary row; a recording
-    whose folder already holds a result of the same content, rules and options is skipped."""
-    from frontdiag.parallel import interruptible, one_core
+    whose folder already holds a result of the same content, rules and options is skipped.
+    ``progress(done, expected)`` sees the frames analysed; in a pool worker ``slot`` says
+    where in the worker's shared counters they go instead (:func:`run_local`)."""
+    from frontdiag import parallel
 
-    with interruptible(), one_core():
-        return _analyse_one(task)
+    counters = parallel._PROGRESS
+    if slot is not None and counters is not None:
+        def progress(done: int, expected: int | None) -> None:
+            counters[2 * slot], counters[2 * slot + 1] = done, expected or 0
+
+    with parallel.interruptible(), parallel.one_core():
+        return _analyse_one(task, progress)
 
 
-def _analyse_one(task: Task) -> dict[str, Any]:
+def _analyse_one(task: Task, progress: Callable[[int, int | None], None] | None = None
+                 ) -> dict[str, Any]:
     t0 = time.perf_counter()
     name = task.out.name
     row: dict[str, Any] = {"recording": name, "path": str(task.path)}
@@ -181,7 +191,7 @@ def _analyse_one(task: Task) -> dict[str, Any]:
                     and (task.out / "frames.parquet").exists():
                 return _complete({**old["summary"], "status": "skipped",
                                   "path": str(task.path)})
-        row.update(_analyse(task))
+        row.update(_analyse(task, progress))
         row["status"] = "error" if row.get("error") else "ok"
         row["seconds"] = round(time.perf_counter() - t0, 3)
         if row["status"] == "ok":
@@ -197,13 +207,14 @@ def _analyse_one(task: Task) -> dict[str, Any]:
     return _complete(row)
 
 
-def _analyse(task: Task) -> dict[str, Any]:
+def _analyse(task: Task, progress: Callable[[int, int | None], None] | None = None
+             ) -> dict[str, Any]:
     from frontdiag.api import run_analysis
     from frontdiag.output import write_manifest, write_table
     from frontdiag.report import write_episodes, write_rules_snapshot
     from frontdiag.verdicts import gate
 
-    result = run_analysis(task.path, task.opts)
+    result = run_analysis(task.path, task.opts, progress=progress)
     task.out.mkdir(parents=True, exist_ok=True)
     write_table(task.out, result.table, csv=task.csv)
     write_manifest(task.out, result.manifest)
@@ -259,6 +270,8 @@ def plan_tasks(inputs: Iterable[str | Path], out: Path, opts: Any, *, fail_on: s
 
 
 RowFn = Callable[[dict[str, Any]], None]
+FramesFn = Callable[[int, int, "int | None"], None]
+"""``(task index, frames analysed, frames expected or None)`` of a recording being analysed."""
 
 
 def interrupted(row: dict[str, Any]) -> bool:
@@ -283,8 +296,11 @@ def largest_first(tasks: list[Task]) -> list[int]:
     return sorted(range(len(tasks)), key=lambda i: -size[i])
 
 
-def run_local(tasks: list[Task], jobs: int, on_row: RowFn | None = None) -> list[dict[str, Any]]:
+def run_local(tasks: list[Task], jobs: int, on_row: RowFn | None = None,
+              on_frames: FramesFn | None = None) -> list[dict[str, Any]]:
     """The tasks on ``jobs`` local processes (in this process when ``jobs`` is 1).
+    ``on_frames`` sees the frames analysed of each recording under way (every
+    ``PROGRESS_POLL_S`` from the workers).
 
     Ctrl-C stops the fleet: no further recording is started, the recordings being analysed keep
     the frames analysed so far (a row marked interrupted), and the rows of the finished ones are
@@ -300,22 +316,42 @@ def run_local(tasks: list[Task], jobs: int, on_row: RowFn | None = None) -> list
     if jobs <= 1 or len(tasks) == 1:
         try:
             for i, t in enumerate(tasks):
-                if take(i, analyse_one(t)):
+                frames = None if on_frames is None else partial(on_frames, i)
+                if take(i, analyse_one(t, progress=frames)):
                     break
         except KeyboardInterrupt:  # between two recordings, or while writing one's results
             pass
     else:
-        from frontdiag.parallel import FLEET_PRELOAD, _context, drain, worker_init
+        from frontdiag.parallel import (
+            FLEET_PRELOAD,
+            PROGRESS_POLL_S,
+            _context,
+            drain,
+            wait,
+            worker_init,
+        )
 
-        pool = ProcessPoolExecutor(max_workers=jobs, mp_context=_context(FLEET_PRELOAD),
-                                   initializer=worker_init)
-        futs = {pool.submit(analyse_one, tasks[i]): i for i in largest_first(tasks)}
+        ctx = _context(FLEET_PRELOAD)
+        # each recording reports (frames analysed, frames expected) into its two slots
+        counters = ctx.RawArray("q", 2 * len(tasks))
+        pool = ProcessPoolExecutor(max_workers=jobs, mp_context=ctx,
+                                   initializer=worker_init, initargs=(counters,))
+        futs = {pool.submit(analyse_one, tasks[i], i): i for i in largest_first(tasks)}
         stop = False
         try:
-            for fut in as_completed(futs):
-                if take(futs[fut], fut.result()):
-                    stop = True
-                    break
+            pending = set(futs)
+            while pending and not stop:
+                finished, pending = wait(pending, timeout=PROGRESS_POLL_S,
+                                         return_when=FIRST_COMPLETED)
+                for fut in finished:
+                    if take(futs[fut], fut.result()):
+                        stop = True
+                        break
+                if on_frames is not None and not stop:
+                    for fut in pending:
+                        i = futs[fut]
+                        if counters[2 * i]:
+                            on_frames(i, counters[2 * i], counters[2 * i + 1] or None)
         except KeyboardInterrupt:
             stop = True
         finally:

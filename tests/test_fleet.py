@@ -406,3 +406,26 @@ def test_a_fleet_written_into_its_own_folder_resumes(tmp_path: Path,
     capsys.readouterr()
     assert (d / "diagnostics.mcap").is_file()
     assert [p.name for p in discover([d])] == ["r0.mcap", "r1.mcap"]
+
+
+@pytest.mark.parametrize("jobs", [1, 2])
+def test_a_fleet_reports_each_recordings_frames_as_they_go(tmp_path: Path, jobs: int) -> None:
+    """A fleet of a few long recordings shows its frames moving, not only each recording as it
+    ends: every recording under way reports its frames analysed against its frames expected,
+    never backwards (in a worker, through shared counters read every PROGRESS_POLL_S)."""
+    from frontdiag.api import AnalysisOptions
+    from frontdiag.fleet import plan_tasks, run_local
+
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    for i in range(2):
+        write_recording(logs / f"r{i}.mcap", "mcap", n=240, seed=i, shift=1 + i)
+    tasks = plan_tasks([logs], tmp_path / "out", AnalysisOptions())
+    seen: dict[int, list[tuple[int, int | None]]] = {}
+    rows = run_local(tasks, jobs, on_frames=lambda i, d, e: seen.setdefault(i, []).append((d, e)))
+    assert [r["frames"] for r in rows] == [240, 240]
+    assert sorted(seen) == [0, 1]
+    for reports in seen.values():
+        done = [d for d, _ in reports]
+        assert done == sorted(done) and all(e == 240 for _, e in reports)
+        assert len([d for d in done if 0 < d < 240]) >= (3 if jobs > 1 else 239)

@@ -59,20 +59,31 @@ def run_fleet(logs: list[Path], out: Path | None, opts: Any, *, jobs: int,
         names = ", ".join(p.name for p in skipped[:3]) + (", ..." if len(skipped) > 3 else "")
         err.print(f"[dim]left out {len(skipped)} file(s) that are not recordings: "
                   f"{escape(names)}[/]", highlight=False)
-    with Progress(TextColumn("[bold]fleet[/]"), BarColumn(), MofNCompleteColumn(),
-                  TextColumn("recordings"), TimeElapsedColumn(), console=err,
+    # one bar for the recordings, and one for each recording under way (its frames)
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TextColumn("{task.fields[unit]}"), TimeElapsedColumn(), console=err,
                   transient=True, disable=not show) as bar:
-        task = bar.add_task("fleet", total=len(tasks))
+        task = bar.add_task("[bold]fleet[/]", total=len(tasks), unit="recordings")
+        under_way: dict[str, Any] = {}  # result name -> its bar
+
+        def on_frames(i: int, done: int, expected: int | None) -> None:
+            name = tasks[i].out.name
+            if name not in under_way:
+                under_way[name] = bar.add_task(f"  {escape(name)}", total=expected,
+                                               unit="frames")
+            bar.update(under_way[name], completed=done, total=expected)
 
         def on_row(row: dict[str, Any]) -> None:
             bar.advance(task)
+            if row["recording"] in under_way:
+                bar.remove_task(under_way.pop(row["recording"]))
             if row["status"] == "error":
                 err.print(f"[red]error[/] {escape(str(row['error']))}")
 
         if scheduler:
             rows = fleet.run_dask(tasks, scheduler, jobs, on_row)
         else:
-            rows = fleet.run_local(tasks, jobs, on_row)
+            rows = fleet.run_local(tasks, jobs, on_row, on_frames)
     path = fleet.write_summary(out, rows)
     if junit is not None:
         from frontdiag.output import guarded_write
