@@ -168,13 +168,8 @@ def analyse_one(task: Task, slot: int | None = None,
     where in the worker's shared counters they go instead (:func:`run_local`)."""
     from frontdiag import parallel
 
-    counters = parallel._PROGRESS
-    if slot is not None and counters is not None:
-        def progress(done: int, expected: int | None) -> None:
-            counters[2 * slot], counters[2 * slot + 1] = done, expected or 0
-
     with parallel.interruptible(), parallel.one_core():
-        return _analyse_one(task, progress)
+        return _analyse_one(task, parallel.task_progress(slot) or progress)
 
 
 def _analyse_one(task: Task, progress: Callable[[int, int | None], None] | None = None
@@ -327,13 +322,13 @@ def run_local(tasks: list[Task], jobs: int, on_row: RowFn | None = None,
             PROGRESS_POLL_S,
             _context,
             drain,
+            shared_counters,
             wait,
             worker_init,
         )
 
         ctx = _context(FLEET_PRELOAD)
-        # each recording reports (frames analysed, frames expected) into its two slots
-        counters = ctx.RawArray("q", 2 * len(tasks))
+        counters = shared_counters(ctx, len(tasks))  # each recording's frames, as it goes
         pool = ProcessPoolExecutor(max_workers=jobs, mp_context=ctx,
                                    initializer=worker_init, initargs=(counters,))
         futs = {pool.submit(analyse_one, tasks[i], i): i for i in largest_first(tasks)}

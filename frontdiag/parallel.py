@@ -109,6 +109,26 @@ _PROGRESS: Any = None
 task, :func:`_run_windows`), or None."""
 
 
+def shared_counters(ctx: Any, tasks: int) -> Any:
+    """Counters a pool's tasks report their progress into, read by the main process: two slots
+    a task, frames analysed and frames expected (0: unknown); see :func:`task_progress`."""
+    return ctx.RawArray("q", 2 * tasks)
+
+
+def task_progress(slot: int | None) -> ProgressFn | None:
+    """In a pool worker given counters (:func:`worker_init`): the progress callback of task
+    ``slot``, writing into its two slots; None elsewhere."""
+    counters = _PROGRESS
+    if slot is None or counters is None:
+        return None
+    at = 2 * slot
+
+    def progress(done: int, expected: int | None) -> None:
+        counters[at], counters[at + 1] = done, expected or 0
+
+    return progress
+
+
 def worker_init(progress: Any = None) -> None:
     """Pool workers ignore Ctrl-C while they wait for a task (an idle worker has nothing to
     keep and would only print a traceback); :func:`interruptible` re-arms it for a task.
@@ -272,11 +292,7 @@ def _task(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
     annotations of the frames it analyses (its part of diagnostics.mcap, ``StreamRun.part``);
     ``slot``: where in the worker's shared counters it reports the frames it has analysed."""
     until = None if until_keys is None else (lambda f, key: until_keys.get(f) == key)
-    counters = _PROGRESS
-    progress = None
-    if slot is not None and counters is not None:
-        def progress(done: int, expected: int | None) -> None:
-            counters[slot] = done
+    progress = task_progress(slot)
     sink = None
     if part is not None:
         from frontdiag.report.mcap_ import DiagnosticsWriter
@@ -388,7 +404,7 @@ def _run_windows(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | 
     ctx = _context()
     # each task reports the frames it has analysed into its slot (the LiDAR task the last), so
     # the progress bar moves while the windows run, not only as each one ends
-    counters = ctx.RawArray("q", len(windows) + 1)
+    counters = shared_counters(ctx, len(windows) + 1)
     pool = ProcessPoolExecutor(max_workers=opts.jobs, mp_context=ctx,
                                initializer=worker_init, initargs=(counters,))
     futs: dict[Future[StreamRun], int] = {
@@ -415,7 +431,7 @@ def _run_windows(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | 
                     runs[futs[fut]] = run
                     rows_of[futs[fut]] = len(run.rows)
             if progress:
-                live = sum(rows_of[i] if i in rows_of else max(0, counters[i] - warm[i])
+                live = sum(rows_of[i] if i in rows_of else max(0, counters[2 * i] - warm[i])
                            for i in range(len(warm)))
                 if expected:
                     live = min(live, expected)

@@ -47,12 +47,11 @@ class RowStore:
     """Rows in the order they were made: the oldest packed, the newest as dicts. ``append``
     returns the row's position, by which ``update`` completes it later."""
 
-    def __init__(self, rows: list[dict[str, Any]] | None = None, *,
-                 chunk: int | None = None) -> None:
+    def __init__(self, chunk: int | None = None) -> None:
         self.chunk = max(1, chunk or CHUNK_ROWS)
         self._chunks: list[tuple[int, bytes]] = []  # (rows, pickle of the rows)
         self._packed = 0  # rows in the chunks
-        self._tail: list[dict[str, Any]] = list(rows or [])
+        self._tail: list[dict[str, Any]] = []
 
     def __len__(self) -> int:
         return self._packed + len(self._tail)
@@ -61,11 +60,8 @@ class RowStore:
         self._tail.append(row)
         return len(self) - 1
 
-    def extend(self, other: RowStore | list[dict[str, Any]]) -> None:
-        """Add another store's rows (or a list of rows) after these."""
-        if isinstance(other, list):
-            self._tail.extend(other)
-            return
+    def extend(self, other: RowStore) -> None:
+        """Add another store's rows after these."""
         if other._chunks:
             self.compact()
             self._chunks.extend(other._chunks)
@@ -102,7 +98,7 @@ class RowStore:
 
     def after_frame(self, frame: int) -> RowStore:
         """The rows whose ``frame`` is greater than ``frame``, as a new store."""
-        out = RowStore(chunk=self.chunk)
+        out = RowStore(self.chunk)
         for chunk in self._chunks:
             kept = [r for r in _unpack(chunk) if r["frame"] > frame]
             if kept:

@@ -54,7 +54,7 @@ def test_packed_rows_give_the_table_of_the_rows_as_dicts(chunk: int, seed: int) 
     """Whatever the chunks, the table of all the rows at once (a list column reads None where
     a row has no value, whether it said None or lacked the key)."""
     rows = _rows(150, seed)
-    store = RowStore(chunk=chunk)
+    store = RowStore(chunk)
     for r in rows:
         store.append(dict(r))
         store.settled()
@@ -65,7 +65,7 @@ def test_packed_rows_give_the_table_of_the_rows_as_dicts(chunk: int, seed: int) 
 
 def test_a_packed_row_is_completed_like_a_held_one() -> None:
     rows = _rows(40, 3)
-    store = RowStore(chunk=4)
+    store = RowStore(4)
     for r in rows:
         store.append(dict(r))
         store.settled()
@@ -78,18 +78,25 @@ def test_a_packed_row_is_completed_like_a_held_one() -> None:
     pd.testing.assert_frame_equal(store.frame(), _whole(rows))
 
 
+def _store(rows: list[dict[str, Any]], chunk: int) -> RowStore:
+    store = RowStore(chunk)
+    for r in rows:
+        store.append(dict(r))
+    return store
+
+
 def test_stores_join_and_cut_at_a_frame() -> None:
     rows = _rows(60, 4)
-    a, b = RowStore(rows[:25], chunk=5), RowStore(rows[25:], chunk=5)
+    a, b = _store(rows[:25], 5), _store(rows[25:], 5)
     a.compact()  # packed, then followed by rows still held
     b.settled()
     a.extend(b)
-    a.extend([dict(r) for r in _rows(3, 5)])
+    a.extend(_store(_rows(3, 5), 5))
     pd.testing.assert_frame_equal(
         a.frame(), _whole(rows + _rows(3, 5)))
-    c = RowStore(rows, chunk=8)
+    c = _store(rows, 8)
     c.compact()
-    c.extend(rows[:5])
+    c.extend(_store(rows[:5], 8))
     want = [r for r in rows + rows[:5] if r["frame"] > 30]
     pd.testing.assert_frame_equal(c.after_frame(30).frame(), _whole(want))
 
