@@ -83,6 +83,39 @@ def test_writing_the_result_leaves_the_table_as_it_was(tmp_path: Path) -> None:
     assert len(back) == len(table) and (tmp_path / "frames.csv").exists()
 
 
+def test_frames_parquet_in_row_groups_reads_as_one_table(tmp_path: Path, monkeypatch) -> None:
+    """frames.parquet is written a row group at a time with the types of the whole table: a
+    vector, list or string column whose first group holds only None reads back as the rest's
+    type, and the table's attrs (the manifest) come back as pandas stores them."""
+    import pyarrow.parquet as pq
+
+    from frontdiag import output
+    from frontdiag.output import read_table, write_table
+
+    monkeypatch.setattr(output, "PARQUET_ROWS", 7)
+    n = 30
+    table = pd.DataFrame({
+        "frame": np.arange(n), "value": np.linspace(0.0, 1.0, n),
+        "lidar_weak_vec": [None] * 10 + [[0.0, 1.0, float(i)] for i in range(n - 10)],
+        "status": [None] * 15 + ["ok"] * (n - 15),
+        "conditions": [[] for _ in range(20)] + [["planar_degeneracy"]] * (n - 20),
+        "rules": [[] for _ in range(n)]})
+    table.attrs["manifest"] = {"input": "r.mcap", "counts": {"camera": n}}
+    write_table(tmp_path, table)
+    assert pq.ParquetFile(tmp_path / "frames.parquet").metadata.num_row_groups == 5
+    back = read_table(tmp_path)
+    assert back.attrs == table.attrs
+    assert back["lidar_weak_vec"].iloc[:10].isna().all()
+    assert [list(v) for v in back["lidar_weak_vec"].iloc[10:]] == \
+        table["lidar_weak_vec"].iloc[10:].tolist()
+    assert back["status"].tolist() == table["status"].tolist()
+    assert back["conditions"].tolist() == table["conditions"].tolist()
+    assert back["rules"].tolist() == table["rules"].tolist()
+    monkeypatch.setattr(output, "PARQUET_ROWS", 10 ** 6)  # one group: the same table
+    write_table(tmp_path, table)
+    pd.testing.assert_frame_equal(read_table(tmp_path), back)
+
+
 def test_json_summary_on_stdout(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     log = write_recording(tmp_path / "run.mcap", "mcap", n=4)
     code, stdout, _ = run(["analyze", str(log), "--json"], capsys)
