@@ -745,3 +745,25 @@ def test_at_a_low_rate_the_twins_reading_still_reads_and_only_the_rest_is_declin
     note = [n for n in res.notes if n.startswith("FD-REP-001")]
     assert len(note) == 1 and "did not read 8 row(s)" in note[0]
     assert "0.34 s" in note[0] and "twins reading" in note[0]
+
+
+@pytest.mark.parametrize("log", ["dock_corridor.mcap", "lights_out.mcap"])
+def test_the_rules_leave_the_table_they_read_as_it_was(ruleset, log, monkeypatch) -> None:
+    """evaluate shares the input's columns where pandas copies on write, and copies the input
+    otherwise: the input is unchanged either way, and both give the same verdicts."""
+    from pathlib import Path
+
+    from frontdiag.api import AnalysisOptions, run_analysis
+    from frontdiag.verdicts import engine
+
+    path = Path(__file__).resolve().parents[1] / "sample_logs" / log
+    table = run_analysis(path, AnalysisOptions(rules=False)).table
+    before = table.copy(deep=True)
+    shared = evaluate(table, ruleset)
+    pd.testing.assert_frame_equal(table, before)
+    monkeypatch.setattr(engine, "copy_on_write", lambda: False)
+    copied = evaluate(table, ruleset)
+    pd.testing.assert_frame_equal(table, before)
+    assert table.attrs == before.attrs
+    pd.testing.assert_frame_equal(shared.table, copied.table)
+    assert shared.table["conditions"].map(len).sum() > 0  # the rules did fire on it
