@@ -40,6 +40,7 @@ import logging
 import math
 import re
 import struct
+from array import array
 from dataclasses import dataclass
 from pathlib import Path
 from types import TracebackType
@@ -133,13 +134,57 @@ def _fmt(v: float) -> str:
     return "nan" if not math.isfinite(v) else f"{v:.6g}"
 
 
+class LogTimes:
+    """Every analysed frame's log time in the recording, per topic, in two growing int64
+    arrays (16 bytes a frame; a dict keyed by (topic, frame) held some 200). A frame added
+    twice reads as the last time added."""
+
+    def __init__(self) -> None:
+        self._cols: dict[str, tuple[array[int], array[int]]] = {}
+        self._index: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # built on first lookup
+
+    def add(self, topic: str, frame: int, log_ns: int) -> None:
+        frames, times = self._cols.setdefault(topic, (array("q"), array("q")))
+        frames.append(frame)
+        times.append(log_ns)
+        self._index.pop(topic, None)
+
+    def update(self, other: LogTimes) -> None:
+        """Add every time of ``other`` after this one's (they win where both hold a frame)."""
+        for topic, (frames, times) in other._cols.items():
+            mine = self._cols.setdefault(topic, (array("q"), array("q")))
+            mine[0].extend(frames)
+            mine[1].extend(times)
+            self._index.pop(topic, None)
+
+    def get(self, topic: str, frame: int, default: int) -> int:
+        if topic not in self._cols:
+            return default
+        if topic not in self._index:
+            frames, times = (np.frombuffer(a, dtype=np.int64) for a in self._cols[topic])
+            order = np.argsort(frames, kind="stable")  # the last added of a frame sorts last
+            self._index[topic] = (frames[order], times[order])
+        frames, times = self._index[topic]
+        i = int(np.searchsorted(frames, frame, side="right")) - 1
+        return int(times[i]) if i >= 0 and frames[i] == frame else default
+
+    def __len__(self) -> int:
+        return sum(len(f) for f, _ in self._cols.values())
+
+    def __getstate__(self) -> dict[str, tuple[array[int], array[int]]]:
+        return self._cols
+
+    def __setstate__(self, cols: dict[str, tuple[array[int], array[int]]]) -> None:
+        self._cols, self._index = cols, {}
+
+
 @dataclass(frozen=True)
 class DiagnosticsPart:
     """A window's part of diagnostics.mcap (:meth:`DiagnosticsWriter.part`): the file its
     annotations went to, and the log times and frame ids of the frames it analysed."""
 
     path: str
-    log_ns: dict[tuple[str, int], int]
+    log_ns: LogTimes
     frame_ids: dict[str, str]
 
 
@@ -162,7 +207,7 @@ class DiagnosticsWriter:
         for name, text in _FOXGLOVE_MSGS.items():
             self.ts.register(get_types_from_msg(text, name))
         self._rec: Any = None
-        self._log_ns: dict[tuple[str, int], int] = {}
+        self._log_ns = LogTimes()
         self._frame_ids: dict[str, str] = {}
         self.counts: dict[str, int] = {}
 
@@ -199,7 +244,7 @@ class DiagnosticsWriter:
     # -- streaming: one call per analysed frame ------------------------------------------------
     def __call__(self, row: dict[str, Any], annotation: Any,
                  record: CameraFrame | LidarScan) -> None:
-        self._log_ns[(record.topic, int(record.index))] = int(record.log_ns)
+        self._log_ns.add(record.topic, int(record.index), int(record.log_ns))
         if record.frame_id:
             self._frame_ids.setdefault(record.topic, record.frame_id)
         if isinstance(annotation, CameraAnnotation):
@@ -256,7 +301,7 @@ class DiagnosticsWriter:
     # -- windows analysed elsewhere: part files -------------------------------------------------
     def part(self) -> DiagnosticsPart:
         """What a closed part writer hands to the result's writer (picklable)."""
-        return DiagnosticsPart(str(self.path), dict(self._log_ns), dict(self._frame_ids))
+        return DiagnosticsPart(str(self.path), self._log_ns, dict(self._frame_ids))
 
     def merge_part(self, part: DiagnosticsPart, frames: tuple[int, int | None] | None = None
                    ) -> None:
@@ -282,7 +327,7 @@ class DiagnosticsWriter:
     # -- after the rules: per-row diagnostics and metrics, per-episode log ----------------------
     def log_ns(self, topic: str, frame: int, t_ns: int) -> int:
         """The recording's log time of an analysed row (its stamp if it was not streamed)."""
-        return self._log_ns.get((topic, int(frame)), int(t_ns))
+        return self._log_ns.get(topic, int(frame), int(t_ns))
 
     def finish(self, table: pd.DataFrame, verdicts: Any = None, ruleset: Any = None) -> None:
         """Write the per-row messages and the episode log, then close the file."""
