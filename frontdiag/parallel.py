@@ -44,6 +44,7 @@ from frontdiag.runner import (
     FrameWindow,
     ProgressFn,
     SensorStream,
+    StateKeys,
     StreamRun,
     TopicStats,
     run_stream,
@@ -286,12 +287,12 @@ def window_overlap(params: Any, stride: int = 1) -> int:
 
 
 def _task(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
-          frames: FrameWindow | None, resume: Any = None, until_keys: dict[int, Any] | None = None,
+          frames: FrameWindow | None, resume: Any = None, until_keys: StateKeys | None = None,
           part: str | None = None, slot: int | None = None) -> StreamRun:
     """One window (or the whole LiDAR stream) in a worker process; ``part``: a file for the
     annotations of the frames it analyses (its part of diagnostics.mcap, ``StreamRun.part``);
     ``slot``: where in the worker's shared counters it reports the frames it has analysed."""
-    until = None if until_keys is None else (lambda f, key: until_keys.get(f) == key)
+    until = None if until_keys is None else until_keys.matches
     progress = task_progress(slot)
     sink = None
     if part is not None:
@@ -519,7 +520,7 @@ def _read_whole(run: StreamRun, w: FrameWindow) -> bool:
 def _met(prev: StreamRun, run: StreamRun, w: FrameWindow) -> bool:
     """Whether the warm-up of ``run`` reached the state ``prev`` had at some frame before the
     window, after which both give the same rows."""
-    return any(prev.keys.get(f) == key for f, key in run.keys.items() if f < w.own_from)
+    return any(prev.keys.get(f) == d for f, d in run.keys.items() if f < w.own_from)
 
 
 def _rerun(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
@@ -541,7 +542,10 @@ def _rerun(path: Path, choice: TopicChoice, opts: Any, intr: Intrinsics | None,
     parts: Parts = []
     if fix.part is not None and first.part is not None:
         parts = [(fix.part, (0, fix.stopped_at)), (first.part, (fix.stopped_at + 1, None))]
-    return replace(first, rows=rows, keys={**first.keys, **fix.keys}), parts
+    keys = StateKeys()
+    keys.update(first.keys)
+    keys.update(fix.keys)
+    return replace(first, rows=rows, keys=keys), parts
 
 
 def _merge_counts(acc: SensorStream | None, cur: SensorStream | None) -> SensorStream | None:

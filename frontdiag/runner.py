@@ -12,7 +12,9 @@ stays a pure, sequential function of its frames.
 from __future__ import annotations
 
 import copy
+import hashlib
 import logging
+from array import array
 from collections import deque
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -288,6 +290,58 @@ def iter_camera_frames(rec: Recording, topic: str, msgtype: str, opts: Any = Non
             yield frame
 
 
+class StateKeys:
+    """The camera state key after each frame of a pass (:func:`camera_key`), for the meeting
+    test of a split run (frontdiag.parallel), kept as a 16-byte digest of the key's repr: the
+    key's ints and floats written exactly, so two keys with the same digest hold the same
+    values. 24 bytes a frame, where the keys themselves (the gap detector's last 20
+    intervals among them) held about 600. A frame added twice reads as the last key added."""
+
+    def __init__(self) -> None:
+        self._frames: array[int] = array("q")
+        self._digests = bytearray()
+        self._index: dict[int, bytes] | None = None  # built on the first lookup
+
+    @staticmethod
+    def digest(key: Any) -> bytes:
+        return hashlib.blake2b(repr(key).encode(), digest_size=16).digest()
+
+    def add(self, frame: int, key: Any) -> None:
+        self._frames.append(frame)
+        self._digests += self.digest(key)
+        self._index = None
+
+    def update(self, other: StateKeys) -> None:
+        """Add every key of ``other`` after this one's (they win where both hold a frame)."""
+        self._frames.extend(other._frames)
+        self._digests += other._digests
+        self._index = None
+
+    def items(self) -> Iterator[tuple[int, bytes]]:
+        """(frame, digest) in the order added."""
+        for i, f in enumerate(self._frames):
+            yield f, bytes(self._digests[16 * i:16 * i + 16])
+
+    def get(self, frame: int) -> bytes | None:
+        """The digest of the key after ``frame``, None if it was not kept."""
+        if self._index is None:
+            self._index = dict(self.items())
+        return self._index.get(frame)
+
+    def matches(self, frame: int, key: Any) -> bool:
+        """Whether ``key`` is the key kept after ``frame``."""
+        return self.get(frame) == self.digest(key)
+
+    def __len__(self) -> int:
+        return len(self._frames)
+
+    def __getstate__(self) -> tuple[array[int], bytearray]:
+        return self._frames, self._digests
+
+    def __setstate__(self, state: tuple[array[int], bytearray]) -> None:
+        (self._frames, self._digests), self._index = state, None
+
+
 @dataclass
 class StreamRun:
     """What one pass of :func:`run_stream` produced."""
@@ -297,7 +351,7 @@ class StreamRun:
     lid: SensorStream | None
     fault: FrontdiagError | None = None
     interrupted: bool = False
-    keys: dict[int, Any] = field(default_factory=dict)  # camera frame -> state key after it
+    keys: StateKeys = field(default_factory=StateKeys)  # camera frame -> state key after it
     stopped_at: int | None = None  # camera frame after which ``until`` stopped the pass
     end_state: Any = None  # camera hand-over state at the end (when asked)
     windows: int = 1  # camera windows analysed in parallel (frontdiag.parallel)
@@ -572,7 +626,7 @@ def run_stream(rec: Recording, choice: TopicChoice, opts: Any, intr: Intrinsics 
                     if record_keys or until is not None:
                         key = camera_key(cam_front, cam_stream)
                         if record_keys:
-                            out.keys[frame.index] = key
+                            out.keys.add(frame.index, key)
                         if until is not None and until(frame.index, key):
                             # rows already made may wait for the interval to close: drain
                             out.stopped_at = frame.index
