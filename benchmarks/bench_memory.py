@@ -12,6 +12,13 @@ holds it (frames.parquet read back), per frame: what any process that builds the
 memory must hold at least.
 
     python benchmarks/bench_memory.py [--data ../shared/data] [--frames 3000] [--jobs 1,2]
+    python benchmarks/bench_memory.py --phases      # also where the main process's peak is
+
+With ``--phases`` the ``--jobs 1`` runs also sample the main process's RSS from inside it (a
+thread, every 20 ms) and print its peak during each phase of the run: the pass over the
+recording, building the table, the rules, writing the result files, and writing
+diagnostics.mcap's per-row messages; "start-up" is the command before the pass (imports, the
+recording opened), "other" the rest of it between and after these (the summary, the gate).
 """
 
 from __future__ import annotations
@@ -32,13 +39,65 @@ import psutil
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import real_recordings as rr
 
+PHASES = (("pass", "frontdiag.api", "run_stream"), ("table", "frontdiag.api", "_table"),
+          ("rules", "frontdiag.verdicts", "evaluate"),
+          ("result files", "frontdiag.cli.analyze", "_write_results"),
+          ("diagnostics.mcap rows", "frontdiag.report.mcap_", "DiagnosticsWriter.finish"))
+"""The phases ``--phases`` reports: (name, module, function it runs in)."""
 
-def one_run(rec: Path, out: Path, jobs: int) -> dict[str, Any]:
+
+def phase_child(argv: list[str]) -> None:
+    """``frontdiag analyze ARGV`` in this process, printing the peak RSS of each phase (MiB) as
+    one JSON line on stdout at the end."""
+    import importlib
+    import json
+    import os
+    import threading
+
+    from frontdiag.cli import app
+
+    proc = psutil.Process(os.getpid())
+    state: dict[str, Any] = {"phase": "start-up", "peaks": {}}
+
+    def sample() -> None:
+        while True:
+            rss = proc.memory_info().rss / 2**20
+            peaks = state["peaks"]
+            peaks[state["phase"]] = max(peaks.get(state["phase"], 0.0), rss)
+            time.sleep(0.02)
+
+    def wrap(name: str, fn: Any) -> Any:
+        def run(*a: Any, **k: Any) -> Any:
+            before, state["phase"] = state["phase"], name
+            try:
+                return fn(*a, **k)
+            finally:
+                time.sleep(0.05)  # a sample at the phase's end
+                # back in the command: after the first phase, that is the rest of it
+                state["phase"] = "other" if before == "start-up" else before
+        return run
+
+    for name, module, attr in PHASES:
+        owner: Any = importlib.import_module(module)
+        *path, fn_name = attr.split(".")
+        for part in path:
+            owner = getattr(owner, part)
+        setattr(owner, fn_name, wrap(name, getattr(owner, fn_name)))
+    threading.Thread(target=sample, daemon=True).start()
+    with contextlib.suppress(SystemExit):
+        app(["analyze", *argv])
+    time.sleep(0.05)
+    print(json.dumps(state["peaks"]), flush=True)
+
+
+def one_run(rec: Path, out: Path, jobs: int, phases: bool = False) -> dict[str, Any]:
     shutil.rmtree(out, ignore_errors=True)
-    cmd = [sys.executable, "-m", "frontdiag", "analyze", str(rec), "--out", str(out), "-q",
-           "--fail-on", "never", "--jobs", str(jobs)]
+    args = [str(rec), "--out", str(out), "-q", "--fail-on", "never", "--jobs", str(jobs)]
+    cmd = [sys.executable, "-m", "frontdiag", "analyze", *args]
+    if phases:
+        cmd = [sys.executable, str(Path(__file__).resolve()), "--phase-child", *args]
     t0 = time.perf_counter()
-    p = subprocess.Popen(cmd)
+    p = subprocess.Popen(cmd, stdout=subprocess.PIPE if phases else None, text=True)
     main = psutil.Process(p.pid)
     peak_main, peak_child = 0.0, {}
     while p.poll() is None:
@@ -55,10 +114,17 @@ def one_run(rec: Path, out: Path, jobs: int) -> dict[str, Any]:
     wall = time.perf_counter() - t0
     if p.returncode not in (0, 1):
         raise SystemExit(f"{' '.join(cmd)} exited {p.returncode}")
+    by_phase: dict[str, float] = {}
+    if phases:
+        import json
+
+        assert p.stdout is not None
+        by_phase = json.loads(p.stdout.read().strip().splitlines()[-1])
     table = pd.read_parquet(out / "frames.parquet")
     workers = sorted(peak_child.values(), reverse=True)
     return {"frames": len(table), "wall": wall, "main": peak_main, "workers": workers,
-            "table_kib_per_frame": table.memory_usage(deep=True).sum() / 1024 / len(table)}
+            "table_kib_per_frame": table.memory_usage(deep=True).sum() / 1024 / len(table),
+            "phases": by_phase}
 
 
 def main() -> None:
@@ -66,6 +132,8 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=None, help="../shared/data")
     ap.add_argument("--frames", type=int, default=3000, help="1x length (10x is also run)")
     ap.add_argument("--jobs", default="1,2", help="comma list of --jobs values")
+    ap.add_argument("--phases", action="store_true",
+                    help="also the main process's peak RSS in each phase (--jobs 1 runs)")
     args = ap.parse_args()
     jobs = [int(j) for j in args.jobs.split(",") if j]
     res: dict[tuple[int, int], dict[str, Any]] = {}
@@ -75,11 +143,15 @@ def main() -> None:
             rec = rr.write(tmp / f"len{mult}.mcap", "tum160", args.frames * mult,
                            root=args.data)
             for j in jobs:
-                res[(mult, j)] = one_run(rec, tmp / f"out{mult}_{j}", j)
+                res[(mult, j)] = one_run(rec, tmp / f"out{mult}_{j}", j,
+                                         phases=args.phases and j == 1)
                 r = res[(mult, j)]
                 ws = ", ".join(f"{w:.0f}" for w in r["workers"]) or "-"
                 print(f"{r['frames']:>7} frames  --jobs {j}  {r['wall']:7.1f} s  main peak "
                       f"{r['main']:6.0f} MiB  workers {ws} MiB", flush=True)
+                if r["phases"]:
+                    print("         peak by phase: " + ", ".join(
+                        f"{k} {v:.0f} MiB" for k, v in r["phases"].items()), flush=True)
             rec.unlink()
     print()
     for j in jobs:
@@ -93,4 +165,7 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    if len(sys.argv) > 1 and sys.argv[1] == "--phase-child":
+        phase_child(sys.argv[2:])
+    else:
+        main()
