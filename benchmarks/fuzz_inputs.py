@@ -18,7 +18,10 @@ Usage (from the repository root)::
 
 ``--cases`` is per container and damage kind. Prints the counts per class and per container,
 and every case outside the contract with the command that reproduces it (the damaged files are
-kept in ``--keep DIR`` when given).
+kept in ``--keep DIR`` when given). While it runs, stderr says how many cases are done (every
+tenth of them) and names each case outside the contract as it is found; stopped by Ctrl-C or
+by a ``timeout`` around it (SIGTERM), it lets the running cases finish and prints the summary
+of the finished ones.
 
 Parallel windows (``analyze --jobs N``) on damaged input::
 
@@ -36,6 +39,7 @@ import argparse
 import hashlib
 import random
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -43,6 +47,7 @@ import time
 from collections import Counter, defaultdict
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
@@ -158,9 +163,31 @@ def main() -> int:
             o, s = run_case(rec, rec.parent / "out", args.timeout, args.analyze_jobs)
             return container, kind, rec, o, s
 
+        def stop(signum: int, frame: Any) -> None:
+            raise KeyboardInterrupt
+
+        # a `timeout` around the campaign (SIGTERM) or Ctrl-C: the cases finished are counted
+        signal.signal(signal.SIGTERM, stop)
         t0 = time.perf_counter()
-        with ThreadPoolExecutor(max(1, args.jobs)) as pool:
-            results = list(pool.map(one, cases))
+        results: list[tuple[str, str, Path, Outcome, float]] = []
+        step = max(1, len(cases) // 10)
+        pool = ThreadPoolExecutor(max(1, args.jobs))
+        try:
+            for k, r in enumerate(pool.map(one, cases), 1):
+                results.append(r)
+                if r[3].klass not in GOOD:  # said at once, not only in the summary
+                    print(f"OUTSIDE {r[3].klass}: {r[0]} {r[1]}", file=sys.stderr, flush=True)
+                if k % step == 0:
+                    print(f"{k}/{len(cases)} cases, {time.perf_counter() - t0:.0f} s",
+                          file=sys.stderr, flush=True)
+        except KeyboardInterrupt:
+            print(f"stopped after {len(results)} of {len(cases)} cases (those running are "
+                  "left to finish); the summary counts the finished ones", file=sys.stderr,
+                  flush=True)
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+        if not results:
+            return 1
         wall = time.perf_counter() - t0
         by_class: Counter[str] = Counter()
         by_container: dict[str, Counter[str]] = defaultdict(Counter)
