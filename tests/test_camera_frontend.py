@@ -474,6 +474,65 @@ def test_noise_fills_the_budget_but_leaves_no_texture_at_scale() -> None:
     assert "older frontdiag" in explain({}, params)[0]  # a table without the column
 
 
+def _board_on_wall(wall: float, seed: int) -> np.ndarray:
+    """A 6x5-square chequerboard of 48 px squares (288x240 px, 7.5 % of the view) on a plain
+    wall of grey level ``wall`` under sensor noise, 1280x720."""
+    img = np.full((720, 1280), wall)
+    for r in range(5):
+        for c in range(6):
+            shade = 230.0 if (r + c) % 2 else 30.0
+            img[300 + 48 * r:300 + 48 * (r + 1), 500 + 48 * c:500 + 48 * (c + 1)] = shade
+    return _grain(img, seed)
+
+
+def test_a_textured_object_on_a_lit_plain_wall_reads_clustered() -> None:
+    """A board on 7.5 % of a plain wall holds far more than 30 strong corners at scale, so
+    FD-CLU-003 (fewer than 30) does not read it, and the retry at t = 7 fills the wall with
+    noise corners, so the keypoints' entropy reads spread: FD-CLU-004 reads the hull of the
+    corners at scale in a lit view. The same board on a dark wall (a lamp-lit object at night)
+    is left to the exposure and black-view rules, and a textured view reads nothing."""
+    from frontdiag.verdicts import load_ruleset
+    from frontdiag.verdicts.engine import rule_mask
+
+    rng = np.random.default_rng(4)
+    cells = rng.integers(0, 2, (45, 80)).astype(np.float64) * 160 + 40
+    textured = _grain(cv2.resize(cells, (1280, 720), interpolation=cv2.INTER_NEAREST), 5)
+    frames = [_board_on_wall(120.0, 1), _board_on_wall(8.0, 2), textured]
+    fe = CameraFrontend(CameraParams(), None)
+    rows = [fe.process(frame(i, g)) for i, g in enumerate(frames)]
+    lit_wall, dark_wall, spread = rows
+    for r in (lit_wall, dark_wall):
+        assert r["n_coarse_keypoints"] >= 30 and r["coarse_hull_share"] < 0.25
+        assert r["keypoint_fill"] >= 0.3
+    assert lit_wall["lit_share"] > 0.9 and lit_wall["entropy_norm"] > 0.6
+    assert dark_wall["lit_share"] < 0.5
+    assert spread["coarse_hull_share"] > 0.7
+    import pandas as pd
+
+    table = pd.DataFrame(rows)
+    rules = {r.id: r for r in load_ruleset().rules}
+    assert rule_mask(rules["FD-CLU-004"], table).tolist() == [True, False, False]
+    # the rules that were blind to it still are: many corners at scale, spread keypoints
+    for rid in ("FD-CLU-002", "FD-CLU-003", "FD-DET-001", "FD-DET-002"):
+        assert not rule_mask(rules[rid], table)[0], rid
+    # the rest of the view is noise only while the matched points are not spread over it:
+    # spread inliers are texture too fine to survive at scale (under 30 inliers: not read)
+    assert np.isnan(lit_wall["entropy_inliers_norm"])
+    matched = pd.DataFrame([{**lit_wall, "entropy_inliers_norm": e} for e in (0.45, 0.75)])
+    assert rule_mask(rules["FD-CLU-004"], matched).tolist() == [True, False]
+    from frontdiag.verdicts import CHECKS
+
+    explain = CHECKS["object_on_plain"].explain
+    assert explain is not None
+    params = rules["FD-CLU-004"].param_values()
+    lines = explain(lit_wall, params)
+    assert any("one small part of the view" in x for x in lines)
+    assert any("rest of the view is lit" in x for x in lines)
+    assert any("dim" in x for x in explain(dark_wall, params))
+    assert any("not noise" in x for x in explain(dict(matched.iloc[1]), params))
+    assert "spread over the view" in " ".join(explain(spread, params))
+
+
 def test_stray_corners_at_scale_do_not_spread_the_hull() -> None:
     """A corner at scale with no other within the level-3 patch (54 px) is a stray: it is
     counted but left out of the hull, so one object plus three specks reads as the object."""

@@ -198,7 +198,7 @@ def test_bad_override_files_are_config_errors(tmp_path, text, needle) -> None:
 
 def test_select_and_ignore_by_id_prefix_condition_and_file() -> None:
     ids = lambda **kw: {r.id for r in load_ruleset(**kw).rules}  # noqa: E731
-    assert ids(select=["FD-CLU"]) == {"FD-CLU-001", "FD-CLU-002", "FD-CLU-003"}
+    assert ids(select=["FD-CLU"]) == {"FD-CLU-001", "FD-CLU-002", "FD-CLU-003", "FD-CLU-004"}
     assert ids(select=["pure_rotation,FD-DET-001"]) == {"FD-ROT-001", "FD-DET-001"}
     assert ids(select=["camera_geometry"]) == {"FD-PLN-001", "FD-ROT-001", "FD-RAN-001"}
     everything = ids()

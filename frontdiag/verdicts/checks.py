@@ -1175,6 +1175,60 @@ def _texture_at_scale_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     return out
 
 
+
+def _object_on_plain(df: pd.DataFrame, p: Params) -> np.ndarray:
+    """Many corners at scale, all in one small part of a lit view, and the matched points not
+    spread over it: the keypoints elsewhere are the retry's noise on a plain surface."""
+    n, hull, fill, lit, ent_in = (col(df, m) for m in (
+        "n_coarse_keypoints", "coarse_hull_share", "keypoint_fill", "lit_share",
+        "entropy_inliers_norm"))
+    with np.errstate(invalid="ignore"):
+        # under 30 inliers (NaN) the matches cannot show a spread: they do not contradict
+        spread_matches = ent_in >= p["inlier_spread"]
+        return (fill >= p["fill_floor"]) & (n >= p["coarse_min"]) & (hull < p["hull_max"]) \
+            & (lit >= p["lit_min"]) & ~spread_matches
+
+
+def _object_on_plain_explain(row: Mapping[str, Any], p: Params) -> list[str]:
+    n, hull, fill, kp, lit, ent, ent_in = (_v(row, m) for m in (
+        "n_coarse_keypoints", "coarse_hull_share", "keypoint_fill", "n_keypoints", "lit_share",
+        "entropy_norm", "entropy_inliers_norm"))
+    if np.isnan(n):
+        return ["n_coarse_keypoints not in this table (written by an older frontdiag): re-run "
+                "analyze to read texture at scale"]
+    if not n >= p["coarse_min"]:
+        return [f"n_coarse_keypoints {_fmt(n)} < {p['coarse_min']:g}: FD-CLU-003 and FD-DET-002 "
+                "read a view with this few corners at scale"]
+    out = []
+    if np.isnan(hull) or hull >= p["hull_max"]:
+        out.append(f"coarse_hull_share {_fmt(hull)} >= {p['hull_max']:g}: the {_fmt(n)} strong "
+                   "corners at scale are spread over the view, not one small object")
+        return out
+    out.append(f"coarse_hull_share {hull:.3f} < {p['hull_max']:g}: the {_fmt(n)} strong corners "
+               "at scale (level >= 3, FAST >= 20) sit in one small part of the view")
+    if not np.isnan(fill) and fill < p["fill_floor"]:
+        out.append(f"{_fill_words(kp, fill)} < {p['fill_floor']:g}: FD-DET-001 reads this frame")
+    elif not np.isnan(ent):
+        out.append(f"the keypoints read entropy_norm {ent:.2f}: the rest of the budget is spread "
+                   "over the plain part of the view")
+    if np.isnan(lit) or lit < p["lit_min"]:
+        out.append(f"lit_share {_fmt(lit)} < {p['lit_min']:g}: the view is dim and its corners "
+                   "gather where the light is; the exposure and black-view rules read that")
+    else:
+        out.append(f"lit_share {lit:.2f} >= {p['lit_min']:g}: the rest of the view is lit, "
+                   "a plain surface rather than darkness")
+    if ent_in >= p["inlier_spread"]:
+        out.append(f"but the essential-matrix inliers read entropy {ent_in:.2f} >= "
+                   f"{p['inlier_spread']:g}: the points elsewhere match, so they are texture, "
+                   "not noise (not this rule)")
+    elif np.isnan(ent_in):
+        out.append("fewer than 30 essential-matrix inliers: no spread of matched points "
+                   "contradicts it")
+    else:
+        out.append(f"the essential-matrix inliers read entropy {ent_in:.2f} < "
+                   f"{p['inlier_spread']:g}: what matches is the object")
+    return out
+
 # --- §4 of docs/derivations.md: RANSAC starvation -----------------------------------------------------------
 
 def _ransac_starved(df: pd.DataFrame, p: Params) -> np.ndarray:
@@ -1339,6 +1393,18 @@ CHECKS: dict[str, Check] = {c.name: c for c in [
           {"coarse_min": "n_coarse_keypoints", "hull_max": "coarse_hull_share",
            "fill_floor": "keypoint_fill"},
           frame=_texture_at_scale, explain=_texture_at_scale_explain),
+    Check("object_on_plain", "many corners at scale, all in one small part of a lit view, "
+          "while the keypoints elsewhere do not match: one textured object on a plain surface "
+          "whose noise fills the rest of the budget",
+          "frame", "camera", ("n_coarse_keypoints", "coarse_hull_share", "keypoint_fill",
+                              "lit_share", "entropy_inliers_norm", "entropy_norm", "n_keypoints"),
+          {"coarse_min": _NUM, "hull_max": _NUM, "fill_floor": _NUM, "lit_min": _NUM,
+           "inlier_spread": _NUM},
+          {"coarse_hull_share": "min", "entropy_inliers_norm": "min"},
+          {"coarse_min": "n_coarse_keypoints", "hull_max": "coarse_hull_share",
+           "fill_floor": "keypoint_fill", "lit_min": "lit_share",
+           "inlier_spread": "entropy_inliers_norm"},
+          frame=_object_on_plain, explain=_object_on_plain_explain),
     Check("ransac_starved", "the iterations the measured inlier ratio requires "
           "exceed the iterations run, so the frame is untrusted", "frame", "camera",
           ("ransac_iters_required", "ransac_iters_run", "inlier_ratio"), {"margin": _NUM},
