@@ -1208,9 +1208,13 @@ def _object_on_plain_explain(row: Mapping[str, Any], p: Params) -> list[str]:
                "at scale (level >= 3, FAST >= 20) sit in one small part of the view")
     if not np.isnan(fill) and fill < p["fill_floor"]:
         out.append(f"{_fill_words(kp, fill)} < {p['fill_floor']:g}: FD-DET-001 reads this frame")
+    elif ent >= p["inlier_spread"]:
+        out.append(f"the keypoints read entropy_norm {ent:.2f} >= {p['inlier_spread']:g}: the rest "
+                   "of the budget is spread over the plain part of the view, so their own "
+                   "entropy is blind to the object")
     elif not np.isnan(ent):
-        out.append(f"the keypoints read entropy_norm {ent:.2f}: the rest of the budget is spread "
-                   "over the plain part of the view")
+        out.append(f"the keypoints read entropy_norm {ent:.2f} < {p['inlier_spread']:g}: they "
+                   "crowd the object too (FD-CLU-001/002 read that where the pose confirms it)")
     if np.isnan(lit) or lit < p["lit_min"]:
         out.append(f"lit_share {_fmt(lit)} < {p['lit_min']:g}: the view is dim and its corners "
                    "gather where the light is; the exposure and black-view rules read that")
