@@ -299,12 +299,22 @@ def test_interrupted_windows_keep_the_frames_before_the_interruption(
     path = write_recording(tmp_path / "run.mcap", "mcap", n=150, shift=1)
     whole = run_analysis(path, AnalysisOptions())
 
+    real_wait = frontdiag.parallel.wait
+    seen = [0]  # frames the windows have reported analysed
+
     def interrupted_wait(fs, timeout=None, return_when=None):  # type: ignore[no-untyped-def]
-        raise KeyboardInterrupt  # where the main process waits for its windows
+        # where the main process waits for its windows, once a worker has analysed a frame:
+        # interrupted at once, workers still starting (on a loaded machine) would have none
+        if seen[0] == 0:
+            return real_wait(fs, timeout=timeout, return_when=return_when)
+        raise KeyboardInterrupt
+
+    def progress(done, expected):  # type: ignore[no-untyped-def]
+        seen[0] = done
 
     with monkeypatch.context() as m:
         m.setattr(frontdiag.parallel, "wait", interrupted_wait)
-        par = run_analysis(path, AnalysisOptions(jobs=2))
+        par = run_analysis(path, AnalysisOptions(jobs=2), progress=progress)
     assert par.interrupted
     kept = len(par.table)
     assert 0 < kept <= 150
