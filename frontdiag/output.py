@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -186,7 +186,7 @@ PARQUET_ROWS = 8192
 the whole table's (about the table's own size, 27 MiB at 30 000 frames)."""
 
 
-def _write_parquet(df: pd.DataFrame, path: Path, attrs: dict[str, Any] | None = None) -> None:
+def _write_parquet(df: pd.DataFrame, path: Path, attrs: Mapping[Any, Any] | None = None) -> None:
     """``df.to_parquet(path, index=False)`` group by group: the same file for a reader (types
     from the whole table, so a column whose first rows hold only None still reads as the lists
     or strings of the rest; ``attrs``, by default ``df.attrs``, in the metadata as pandas
@@ -194,7 +194,7 @@ def _write_parquet(df: pd.DataFrame, path: Path, attrs: dict[str, Any] | None = 
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    attrs = df.attrs if attrs is None else attrs
+    attrs = dict(df.attrs if attrs is None else attrs)
     schema = pa.Schema.from_pandas(df, preserve_index=False)
     if attrs:
         schema = schema.with_metadata({**(schema.metadata or {}),
