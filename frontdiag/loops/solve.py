@@ -263,8 +263,14 @@ class _Qdldl:
     def solve(self, b: F) -> F:
         if b.ndim == 1:
             return np.asarray(self._f.solve(b))
-        return np.stack([np.asarray(self._f.solve(np.ascontiguousarray(c))) for c in b.T],
-                        axis=1)
+        # QDLDL solves one right-hand side at a time: transpose once, so each column is a
+        # contiguous row, and fill one array (a strided copy per column and a stack of the
+        # results took a fifth of the time of the solves themselves on M3500's 64 draws)
+        rows = np.ascontiguousarray(b.T)
+        out = np.empty_like(rows)
+        for i in range(rows.shape[0]):
+            out[i] = self._f.solve(rows[i])
+        return out.T
 
 
 class _Cholmod:
