@@ -137,6 +137,16 @@ def test_calibrates_and_caches_when_no_machine_given(tmp_path, capsys, monkeypat
     assert (tmp_path / "cache" / "frontdiag" / "budget-machine.toml").is_file()
     assert main(args) == 0
     assert "cached calibration" in json.loads(capsys.readouterr().out)["machine_note"]
+    # a cache that cannot be used is calibrated again, and the note says why
+    cache = tmp_path / "cache" / "frontdiag" / "budget-machine.toml"
+    cache.write_text(cache.read_text().replace("opencv = ", "opencv = \"0.0\"\nold_opencv = ", 1))
+    assert main(args) == 0
+    note = json.loads(capsys.readouterr().out)["machine_note"]
+    assert "made with another opencv ('0.0' against" in note and "calibrated in this run" in note
+    cache.write_text("not toml [")
+    assert main(args) == 0
+    note = json.loads(capsys.readouterr().out)["machine_note"]
+    assert note.startswith("the cache could not be read (") and "calibrated in this run" in note
 
 
 def test_bad_result_dirs(tmp_path) -> None:

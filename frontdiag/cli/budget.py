@@ -254,20 +254,26 @@ def _machine(o: dict):
     if o["machine"] is not None:
         return load_target(str(o["machine"])), f"from {o['machine']}"
     cache = _cache_file()
+    why_not = ""  # why a cache that is there was not used, said in the note
     if cache.is_file() and not o["recalibrate"]:
         try:
             cached = load_target(str(cache))
-        except Exception:  # a corrupt cache is recalibrated, not reported
-            cached = None
+        except Exception as exc:  # a corrupt cache is recalibrated, and the note says so
+            cached, why_not = None, f"the cache could not be read ({exc}); "
         info = machine_info()
-        if cached is not None and all(cached.machine.get(k) == info[k]
-                                      for k in ("hostname", "cpu", "opencv")):
-            when = cached.machine.get("calibrated_utc", "an earlier run")
-            return cached, (f"cached calibration from {when} ({cache}); --recalibrate to "
-                            "refresh")
+        if cached is not None:
+            other = [k for k in ("hostname", "cpu", "opencv") if cached.machine.get(k) != info[k]]
+            if not other:
+                when = cached.machine.get("calibrated_utc", "an earlier run")
+                return cached, (f"cached calibration from {when} ({cache}); --recalibrate to "
+                                "refresh")
+            why_not = ("the cache was made with another " + ", ".join(other) + " ("
+                       + ", ".join(f"{cached.machine.get(k)!r} against {info[k]!r}"
+                                   for k in other) + "); ")
     target = calibrate(repeats=o["repeats"])
     _write_target(target, cache, CALIBRATION_HEADER)
-    return target, f"calibrated in this run ({o['repeats']} repeats), cached in {cache}"
+    return target, (f"{why_not}calibrated in this run ({o['repeats']} repeats), cached in "
+                    f"{cache}")
 
 
 def _measured(o: dict, workload, target) -> int:
