@@ -141,17 +141,17 @@ def guarded_write(path: Path, write: Callable[[], Any]) -> Any:
                                "location and rerun") from exc
 
 
-def _bare(table: pd.DataFrame) -> pd.DataFrame:
+def without_attrs(table: pd.DataFrame) -> pd.DataFrame:
     """A shallow copy of ``table`` without its attrs: pandas deep-copies ``attrs`` (the run's
     manifest) into every column it hands out, 0.2 ms a column read, some 1 000 reads to write
-    one run's files (as ``verdicts.engine.evaluate`` does for the rules)."""
+    one run's files and diagnostics.mcap (as ``verdicts.engine.evaluate`` does for the rules)."""
     df = table.copy(deep=False)
     df.attrs = {}
     return df
 
 
 def _csv_frame(table: pd.DataFrame) -> pd.DataFrame:
-    df = _bare(table)
+    df = without_attrs(table)
     for col in LIST_COLUMNS:
         if col in df.columns:
             df[col] = df[col].map(lambda v: ";".join(v) if isinstance(v, list | tuple | np.ndarray)
@@ -166,7 +166,7 @@ def _csv_frame(table: pd.DataFrame) -> pd.DataFrame:
 
 def write_table(out: Path, table: pd.DataFrame, csv: bool = False) -> list[Path]:
     written = [out / "frames.parquet"]
-    df = _bare(table)  # the columns converted below are replaced, not written into
+    df = without_attrs(table)  # the columns converted below are replaced, not written into
     # mixed object columns (strings with NaN) must be strings for parquet
     for col in df.columns:
         if col in VECTOR_COLUMNS:

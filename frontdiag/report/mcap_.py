@@ -334,10 +334,9 @@ class DiagnosticsWriter:
         from frontdiag.report.thresholds import rule_thresholds
 
         thresholds = rule_thresholds(ruleset) if ruleset is not None else []
-        # pandas deep-copies attrs (the run's manifest) into every column it hands out, and
-        # the rows below read some 1 000 of them: none of the messages carries the manifest
-        table = table.copy(deep=False)
-        table.attrs = {}
+        from frontdiag.output import without_attrs
+
+        table = without_attrs(table)  # none of the messages carries the manifest
         sensors = [s for s in ("camera", "lidar")
                    if "sensor" in table.columns and (table["sensor"] == s).any()]
         for sensor in sensors:

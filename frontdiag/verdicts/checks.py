@@ -1130,6 +1130,10 @@ def _clustering_explain(row: Mapping[str, Any], p: Params) -> list[str]:
 
 # --- texture at scale: a detector that fills its budget with noise ---------------------------------------------
 
+_NO_COARSE = ("n_coarse_keypoints not in this table (written by an older frontdiag): re-run "
+              "analyze to read texture at scale")
+
+
 def _coarse_split(df: pd.DataFrame, p: Params) -> tuple[np.ndarray, np.ndarray]:
     """(few corners at scale although the budget is full, of those: clustered where they are)."""
     n, hull, fill = (col(df, m) for m in ("n_coarse_keypoints", "coarse_hull_share",
@@ -1149,8 +1153,7 @@ def _texture_at_scale_explain(row: Mapping[str, Any], p: Params) -> list[str]:
     n, hull, kp, fill = (_v(row, m) for m in ("n_coarse_keypoints", "coarse_hull_share",
                                              "n_keypoints", "keypoint_fill"))
     if np.isnan(n):
-        return ["n_coarse_keypoints not in this table (written by an older frontdiag): re-run "
-                "analyze to read texture at scale"]
+        return [_NO_COARSE]
     if not n < p["coarse_min"]:
         return [f"n_coarse_keypoints {_fmt(n)} (level >= 3, FAST score >= 20) >= "
                 f"{p['coarse_min']:g}: the view has texture at scale (textured views keep "
@@ -1194,8 +1197,7 @@ def _object_on_plain_explain(row: Mapping[str, Any], p: Params) -> list[str]:
         "n_coarse_keypoints", "coarse_hull_share", "keypoint_fill", "n_keypoints", "lit_share",
         "entropy_norm", "entropy_inliers_norm"))
     if np.isnan(n):
-        return ["n_coarse_keypoints not in this table (written by an older frontdiag): re-run "
-                "analyze to read texture at scale"]
+        return [_NO_COARSE]
     if not n >= p["coarse_min"]:
         return [f"n_coarse_keypoints {_fmt(n)} < {p['coarse_min']:g}: FD-CLU-003 and FD-DET-002 "
                 "read a view with this few corners at scale"]
