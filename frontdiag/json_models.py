@@ -193,6 +193,10 @@ class ExplainDoc(_Doc):
     verdict: Literal["ok", "warn", "fail"] = Field(description="what the rules found")
     conditions: list[str]
     frame_range: dict[str, int] = Field(description="first and last frame of this topic")
+    also_on: list[str] = Field(default_factory=list,
+                               description="other topics with a row of this frame (or time), "
+                               "explained with --topic; with none given, the camera's row is "
+                               "the one shown")
     rules: list[RuleOnRow]
     metrics: list[MetricOnRow]
 

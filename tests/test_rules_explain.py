@@ -129,6 +129,32 @@ def test_explain_ambiguous_frame_lists_topics(tmp_path, capsys) -> None:
     assert main(["explain", str(d), "--frame", "3", "--topic", "/b"]) == 0
 
 
+def test_explain_takes_the_camera_row_of_a_camera_and_lidar_frame(tmp_path, capsys) -> None:
+    """Frame numbers count per topic: frame 3 of a camera + LiDAR run is the camera's unless
+    --topic says otherwise, and the LiDAR topic is named; two cameras stay ambiguous."""
+    import pandas as pd
+
+    d = tmp_path / "o"
+    d.mkdir()
+    pd.concat([frames(10, {3: {"n_keypoints": 77}}, topic="/cam"),
+               frames(10, sensor="lidar", topic="/scan")]).to_parquet(d / "frames.parquet")
+    assert main(["explain", str(d), "--frame", "3"]) == 0
+    out = capsys.readouterr().out
+    assert "frame 3 camera /cam" in out
+    assert "/scan has a row 3 too: add --topic /scan" in out
+    assert main(["explain", str(d), "--frame", "3", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert (doc["topic"], doc["also_on"]) == ("/cam", ["/scan"])
+    assert next(m["value"] for m in doc["metrics"] if m["name"] == "n_keypoints") == 77
+    assert main(["explain", str(d), "--frame", "3", "--topic", "/scan", "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert (doc["sensor"], doc["topic"], doc["also_on"]) == ("lidar", "/scan", [])
+    pd.concat([frames(10, topic="/left"), frames(10, topic="/right"),
+               frames(10, sensor="lidar", topic="/scan")]).to_parquet(d / "frames.parquet")
+    assert main(["explain", str(d), "--frame", "3"]) == 2
+    assert "--topic /left or --topic /right or --topic /scan" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize(("px", "weak"), [(3.0, True), (12.0, False)])
 def test_explain_calls_a_planar_reading_weak_when_the_parallax_is_few_pixels(
         tmp_path, capsys, px, weak) -> None:

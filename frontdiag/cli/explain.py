@@ -101,7 +101,13 @@ def _frame_range(table: Any, topic: str | None) -> str:
     return "; ".join(parts)
 
 
-def _pick_row(table: Any, frame: int | None, t: float | None, topic: str | None) -> int:
+def _pick_row(table: Any, frame: int | None, t: float | None, topic: str | None
+              ) -> tuple[int, list[str]]:
+    """The row to explain, and the other topics that have a row of this frame (or time).
+
+    Frame numbers count per topic, so a camera + LiDAR run has a frame 10 on each. With no
+    --topic, the camera's row is taken where exactly one camera topic has it (the others are
+    named for --topic); two cameras (a stereo rig) are ambiguous and must be chosen."""
     import numpy as np
 
     from frontdiag.errors import ConfigError, TopicError
@@ -128,11 +134,18 @@ def _pick_row(table: Any, frame: int | None, t: float | None, topic: str | None)
         best = np.nanmin(np.abs(rel - t))
         cand = cand[np.abs(rel - t) == best]
     if cand.size > 1 and "topic" in table.columns:
-        topics = sorted(set(table["topic"].iloc[cand].astype(str)))
+        names = table["topic"].iloc[cand].astype(str).to_numpy()
+        topics = sorted(set(names))
         if len(topics) > 1:
-            raise TopicError("several topics have this row; choose one with "
-                             + " or ".join(f"--topic {x}" for x in topics), candidates=topics)
-    return int(cand[0])
+            sensors = table["sensor"].iloc[cand].astype(str).to_numpy() \
+                if "sensor" in table.columns else np.full(cand.size, "")
+            cams = sorted(set(names[sensors == "camera"]))
+            if len(cams) != 1:
+                raise TopicError("several topics have this row; choose one with "
+                                 + " or ".join(f"--topic {x}" for x in topics),
+                                 candidates=topics)
+            return int(cand[names == cams[0]][0]), [x for x in topics if x != cams[0]]
+    return int(cand[0]), []
 
 
 def _fmt(v: Any) -> str:
@@ -209,7 +222,7 @@ def build_explanation(result_dir: Path, frame: int | None, t: float | None,
     ruleset = _load_rules(result_dir if result_dir.is_dir() else path.parent,
                           rules_dir, overrides)
     result = evaluate(table, ruleset)
-    pos = _pick_row(result.table, frame, t, topic)
+    pos, also_on = _pick_row(result.table, frame, t, topic)
     row = result.table.iloc[pos]
     row_topic = str(row.get("topic", ""))
     same = result.table[result.table["topic"] == row_topic] if "topic" in result.table.columns \
@@ -268,7 +281,7 @@ def build_explanation(result_dir: Path, frame: int | None, t: float | None,
             "status_meaning": meaning, "verdict": str(row["verdict"]),
             "conditions": list(row["conditions"]),
             "frame_range": {"first": int(same["frame"].min()), "last": int(same["frame"].max())},
-            "rules": rules_out, "metrics": metrics}
+            "also_on": also_on, "rules": rules_out, "metrics": metrics}
 
 
 def render(data: dict[str, Any]) -> None:
@@ -282,6 +295,9 @@ def render(data: dict[str, Any]) -> None:
     con.print(f"[bold]frame {data['frame']}[/] {data['sensor']} {escape(data['topic'])} "
               f"t={_fmt(t)} s  [dim](frames {data['frame_range']['first']}-"
               f"{data['frame_range']['last']} on this topic)[/]")
+    for other in data.get("also_on", []):
+        con.print(f"  [dim]{escape(other)} has a row {data['frame']} too: add --topic "
+                  f"{escape(other)} to explain that one[/]")
     con.print(f"  frontend status: [bold]{escape(data['status'])}[/] — "
               f"{escape(data['status_meaning'])}")
     fired = [r["id"] for r in data["rules"] if r["state"] == "fired"]
@@ -330,7 +346,8 @@ def register(app: typer.Typer) -> None:
         t: float | None = typer.Option(None, "--time", "--t", metavar="SECONDS",
                                        help="Seconds from the recording start (nearest row)."),
         topic: str | None = typer.Option(None, "--topic", help="Topic, when several have the "
-                                         "row."),
+                                         "row (default: the camera's, when one camera has "
+                                         "it)."),
         rules_dir: Path | None = typer.Option(None, "--rules", metavar="DIR",
                                               help="Rules directory (default: the one the run "
                                               "used, else the shipped rules/)."),
