@@ -54,6 +54,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
+from scipy.special import fdtrc
 from scipy.stats import chi2 as chi2_dist
 from scipy.stats import f as f_dist
 
@@ -514,7 +515,10 @@ def _joint_p(res: dict[str, F], rows: NDArray[np.intp]) -> float:
         T2 = float(e @ np.linalg.solve(D @ D.T / n_draws, e)) / float(res["sigma0_sq"][0])
     except np.linalg.LinAlgError:
         return 0.0
-    return float(f_dist.sf(T2 * (n_draws - dim + 1) / (n_draws * dim), dim, n_draws - dim + 1))
+    if not T2 > 0:  # where f.sf reads 1 (T2 <= 0) and fdtrc nothing
+        return 1.0 if T2 <= 0 else float("nan")
+    # f.sf's own kernel, without its per-call argument handling (0.1 ms, ~400 calls on M3500)
+    return float(fdtrc(dim, n_draws - dim + 1, T2 * (n_draws - dim + 1) / (n_draws * dim)))
 
 
 def _screen_runs(result: LoopAudit, P: F, in_map: NDArray[np.bool_], p_alarm: float,
