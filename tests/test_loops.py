@@ -150,7 +150,15 @@ def test_a_cycle_of_rounds_stops_and_its_loops_are_judged_outside_the_map(
         res["fold_m"][pair] = fold
         return res
 
+    real_solve = V.solve
+    solved: list[bytes] = []  # the edge set of every solve of the rounds
+
+    def counted(graph, edges, init, **kw):  # type: ignore[no-untyped-def]
+        solved.append(edges.tobytes())
+        return real_solve(graph, edges, init, **kw)
+
     monkeypatch.setattr(V, "map_test", fake)
+    monkeypatch.setattr(V, "solve", counted)
     res = audit(read_graph(path))
     t = res.table
     assert t["i"].iloc[pair].tolist() == [6, 8]
@@ -158,6 +166,11 @@ def test_a_cycle_of_rounds_stops_and_its_loops_are_judged_outside_the_map(
     # pair is never tested in the map again
     assert res.timings["map_rounds"] < 8
     assert calls[:2] == [True, False] and calls.count(True) == 1
+    # the map without the pair is the second round's and, once the cycle is seen, the third's:
+    # solved by the second round only (from the first map's poses and from the chordal start,
+    # since that round dropped loops); the third takes that solution
+    without = V.map_edges(res, ~t["loop"].isin(t["loop"].iloc[pair]).to_numpy()).tobytes()
+    assert solved.count(without) == 2
     assert not t["in_map"].iloc[pair].any()
     for i, other in zip(pair, ["8→48", "6→46"], strict=True):
         reason = t["reason"].iat[i]

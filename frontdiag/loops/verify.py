@@ -631,6 +631,16 @@ def verify_against_map(result: LoopAudit) -> None:
             "screen them, at the cost of up to that many solves")
         return True
 
+    # every map solved in this audit, by its loops: a round whose map an earlier round
+    # already solved (a map that recurs after a cycle: CSAIL's rounds 2 and 4) takes that
+    # solution instead of solving the same problem again from the poses of the map before it
+    # and from the chordal start. The earlier solve started from the chordal start too, or
+    # from a map whose loops were all in this one: never from poses bent by loops outside it,
+    # which is what the restart guards against. Its map test, if still among the tested
+    # maps, comes with it. Poses only: a factorisation per map would hold tens of MB on 3D
+    # graphs
+    solved_maps: dict[bytes, tuple[F, dict[str, float]]] = {}
+
     def run_rounds(in_map: NDArray[np.bool_], P: F, first: int, solved: Solved | None = None
                    ) -> tuple[NDArray[np.bool_], F, dict[str, F], int]:
         res: dict[str, F] = {}
@@ -649,13 +659,15 @@ def verify_against_map(result: LoopAudit) -> None:
         for r in itertools.count(first):
             states.append(in_map.tobytes())
             edges = map_edges(result, in_map)
-            if r == first and solved is not None and np.array_equal(solved[0], in_map):
+            memo = solved_maps.get(states[-1])
+            factored: list[Structure] = []
+            if memo is not None:
+                P, st = memo
+            elif r == first and solved is not None and np.array_equal(solved[0], in_map):
                 P_warm, st_warm = solved[1], solved[2]  # the same solve, from the same P
-                factored: list[Structure] = []
             else:
-                factored = []
                 P_warm, st_warm = solve(g, edges, P, tol=1e-6, keep=factored)
-            if r == 1 or (prev is not None and (prev & ~in_map).any()):
+            if memo is None and (r == 1 or (prev is not None and (prev & ~in_map).any())):
                 # also from the chordal start of this round's edges. The first map's chain
                 # start was 6.0 m from the optimum on intel after 50 iterations: the lower
                 # cost is kept. A later round that dropped loops restarts too: the dropped
@@ -672,7 +684,9 @@ def verify_against_map(result: LoopAudit) -> None:
                 line = st_warm["cost"] if r == 1 else st_warm["cost"] * (1 - RESTART_GAIN)
                 if st_c["cost"] < line:
                     P_warm, st_warm = P_c, st_c
-            P, st = P_warm, st_warm
+            if memo is None:
+                P, st = P_warm, st_warm
+                solved_maps[states[-1]] = (P, st)
             if st.get("converged", 0.0) and not converged_once:
                 converged_once = True
                 end = max(end, r + max_rounds)
