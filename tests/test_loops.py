@@ -959,6 +959,43 @@ def test_a_vertex_quaternion_with_a_huge_component_is_normalised(tmp_path: Path)
     assert main(["loops", str(tmp_path / "v.g2o"), "--quiet"]) in (0, 1)
 
 
+@pytest.mark.parametrize("chordal_converges", [True, False])
+def test_the_first_map_is_solved_from_the_chordal_start_and_from_the_chain_only_if_needed(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, chordal_converges: bool) -> None:
+    """The first map is solved from the chordal start of its edges; the odometry chain's start
+    is solved too only where that solve did not converge, and then the lower cost is kept."""
+    import itertools
+
+    import frontdiag.loops.verify as V
+    from frontdiag.loops.solve import solve
+
+    g = read_graph(_square_graph(tmp_path / "sq.g2o",
+                                 [(k, 40 + k, 0.0) for k in range(0, 40, 2)]))
+    starts: list[np.ndarray] = []  # kept alive, so that identity tells them apart
+    real_init = V.chordal_init
+
+    def chordal(*a, **k):  # type: ignore[no-untyped-def]
+        starts.append(real_init(*a, **k))
+        return starts[-1]
+
+    solves: list[tuple[str, bytes]] = []  # every solve's start and edge set, in order
+
+    def counted(graph, edges, init, **k):  # type: ignore[no-untyped-def]
+        P, st = solve(graph, edges, init, **k)
+        start = "chordal" if any(init is s_ for s_ in starts) else "chain"
+        solves.append((start, edges.tobytes()))
+        if start == "chordal" and not chordal_converges and len(solves) == 1:
+            st = {**st, "converged": 0.0, "cost": st["cost"] * 10}  # stopped at the cap, worse
+        return P, st
+
+    monkeypatch.setattr(V, "chordal_init", chordal)
+    monkeypatch.setattr(V, "solve", counted)
+    t = audit(g).table
+    first = [s_ for s_, e in itertools.takewhile(lambda x: x[1] == solves[0][1], solves)]
+    assert first == (["chordal"] if chordal_converges else ["chordal", "chain"])
+    assert (t["verdict"] == "ok").all() and t["in_map"].all()
+
+
 @pytest.mark.parametrize("restart,converged", [(True, True), (True, False), (False, True)])
 def test_a_round_that_dropped_loops_restarts_from_the_chordal_start(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch, restart: bool, converged: bool) -> None:
