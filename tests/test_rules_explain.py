@@ -141,7 +141,9 @@ def test_explain_takes_the_camera_row_of_a_camera_and_lidar_frame(tmp_path, caps
     assert main(["explain", str(d), "--frame", "3"]) == 0
     out = capsys.readouterr().out
     assert "frame 3 camera /cam" in out
-    assert "/scan has a row 3 too: add --topic /scan" in out
+    assert "/scan has a row here too: add --topic /scan" in out
+    assert main(["explain", str(d), "--time", "0.1"]) == 0  # frame 3 at 30 Hz, on both topics
+    assert "frame 3 camera /cam" in capsys.readouterr().out
     assert main(["explain", str(d), "--frame", "3", "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert (doc["topic"], doc["also_on"]) == ("/cam", ["/scan"])

@@ -296,8 +296,8 @@ def render(data: dict[str, Any]) -> None:
               f"t={_fmt(t)} s  [dim](frames {data['frame_range']['first']}-"
               f"{data['frame_range']['last']} on this topic)[/]")
     for other in data.get("also_on", []):
-        con.print(f"  [dim]{escape(other)} has a row {data['frame']} too: add --topic "
-                  f"{escape(other)} to explain that one[/]")
+        con.print(f"  [dim]{escape(other)} has a row here too: add --topic {escape(other)} "
+                  "to explain that one[/]")
     con.print(f"  frontend status: [bold]{escape(data['status'])}[/] — "
               f"{escape(data['status_meaning'])}")
     fired = [r["id"] for r in data["rules"] if r["state"] == "fired"]
