@@ -638,10 +638,11 @@ def verify_against_map(result: LoopAudit) -> None:
     # from a map whose loops were all in this one: never from poses bent by loops outside it,
     # which is what the restart guards against. Its map test, if still among the tested
     # maps, comes with it. Poses only: a factorisation per map would hold tens of MB on 3D
-    # graphs
+    # graphs. The corroboration's map of every candidate enters it too (solved from the map
+    # of the verified loops, all of them in it)
     solved_maps: dict[bytes, tuple[F, dict[str, float]]] = {}
 
-    def run_rounds(in_map: NDArray[np.bool_], P: F, first: int, solved: Solved | None = None
+    def run_rounds(in_map: NDArray[np.bool_], P: F, first: int
                    ) -> tuple[NDArray[np.bool_], F, dict[str, F], int]:
         res: dict[str, F] = {}
         r = first
@@ -652,7 +653,7 @@ def verify_against_map(result: LoopAudit) -> None:
         # 205 632 down to 15 370, then 92 true loops passing with power against the converged
         # map were left out when the rounds stopped). If no map converges within max_rounds
         # (intel's did not, before FD-LOP-005 capped its overconfident odometry), the rounds
-        # stop there as before. ``solved``: the first round's map, if already solved from P
+        # stop there as before
         end = first + max_rounds
         converged_once = False
         states: list[bytes] = []  # the loops of each round's map, in order
@@ -663,8 +664,6 @@ def verify_against_map(result: LoopAudit) -> None:
             factored: list[Structure] = []
             if memo is not None:
                 P, st = memo
-            elif r == first and solved is not None and np.array_equal(solved[0], in_map):
-                P_warm, st_warm = solved[1], solved[2]  # the same solve, from the same P
             elif r == 1:
                 # the first map from the chordal start of its edges, and from the odometry
                 # chain only where that solve did not converge (the lower cost is kept). The
@@ -760,7 +759,9 @@ def verify_against_map(result: LoopAudit) -> None:
                                      chain_refused & ~_stiffer(res, chain_sigma, overrule))
         if extra.any():
             corroborated = extra
-            in_map, P, res, more = run_rounds(in_map | extra, P, rounds + 1, solved)
+            if solved is not None:  # the map of the verified loops and every candidate
+                solved_maps[solved[0].tobytes()] = (solved[1], solved[2])
+            in_map, P, res, more = run_rounds(in_map | extra, P, rounds + 1)
             rounds = more
     runs_gone: list[tuple[NDArray[np.intp], float, float]] = []
     if run_gap > 0:
