@@ -1580,6 +1580,66 @@ def test_the_two_factorisations_solve_the_normal_equations_alike(dim: int, monke
             assert f._impl._in_place
 
 
+@pytest.mark.parametrize("dim", [2, 3])
+def test_the_hat_block_of_a_few_rows_is_the_dense_one_by_every_path(dim: int, monkeypatch
+                                                                    ) -> None:
+    """Factor.quadratic(rows, B) is Bᵀ H⁻¹ B for a B nonzero only on ``rows``: QDLDL's
+    forward half on the rows they reach in the elimination tree, the full back-substitutions
+    where that reach is wider than REACH_DENSE_MAX, and CHOLMOD's solves, all equal the dense
+    product, before and after a refactorisation of new values (which must not reuse the old
+    factors)."""
+    from frontdiag.loops import solve as S
+
+    g = _lying_graph(dim, seed=6)
+    U = S._chol_upper(g.info)
+    n = g.n_vertices
+    P = np.tile(np.eye(dim + 1), (n, 1, 1))
+    rng = np.random.default_rng(1)
+    lin = S.linearise(P, g.src, g.dst, g.Z, U, n)
+    H, _ = S.normal_equations(lin, g.src, g.dst, n, 1e-3)
+    lin2 = S.linearise(P @ S.lie.exp(rng.normal(0, 0.05, (n, g.k)), dim), g.src, g.dst, g.Z,
+                       U, n)
+    H2, _ = S.normal_equations(lin2, g.src, g.dst, n, 1e-3)
+    poses = np.array([3, 17, 40, 41, 77])  # the poses of a few loops
+    rows = (poses[:, None] * g.k + np.arange(g.k)).ravel()
+    B = rng.standard_normal((rows.size, 4 * g.k))
+
+    def dense(Hs: object) -> np.ndarray:
+        Hd = Hs.toarray()
+        Hd = Hd + np.triu(Hd, 1).T
+        full = np.zeros((Hd.shape[0], B.shape[1]))
+        full[rows] = B
+        return full.T @ np.linalg.solve(Hd, full)
+
+    want, want2 = dense(H), dense(H2)
+    backends = ["qdldl"]
+    try:
+        import cvxopt  # noqa: F401
+        backends.append("cholmod")
+    except ImportError:
+        pass
+    for backend in backends:
+        monkeypatch.setenv(S.SOLVER_ENV, backend)
+        for cap in (S.REACH_DENSE_MAX, 0):
+            monkeypatch.setattr(S, "REACH_DENSE_MAX", cap)
+            f = S.Factor(H, g.k)
+            got = f.quadratic(rows, B)
+            np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12 * np.abs(want).max())
+            f.update(H2)
+            got2 = f.quadratic(rows, B)
+            np.testing.assert_allclose(got2, want2, rtol=1e-9, atol=1e-12 * np.abs(want2).max())
+    monkeypatch.setenv(S.SOLVER_ENV, "qdldl")
+    monkeypatch.setattr(S, "REACH_DENSE_MAX", 10**6)
+    f = S.Factor(H, g.k)
+    tree = S._Etree(f._impl._f.factors())
+    reach = tree.reach(tree.pinv[rows])
+    assert 0 < reach.size < H.shape[0]  # the forward half did not touch every row
+    parent = np.array(tree._parent)
+    inside = np.zeros(H.shape[0], bool)
+    inside[reach] = True
+    assert np.all((parent[reach] == -1) | inside[np.maximum(parent[reach], 0)])
+
+
 def test_a_3d_audit_is_the_same_with_either_factorisation(monkeypatch) -> None:
     """The audit picks CHOLMOD for 3D graphs where cvxopt is installed; forced to QDLDL the
     same graph gets the same verdicts, reasons and figures (to 1e-8 of themselves)."""
