@@ -267,10 +267,10 @@ def test_label_aid_reads_the_gain_between_two_views(gain: float) -> None:
     assert ratio == pytest.approx(gain, abs=0.02)
 
 
-def test_label_aid_can_leave_out_clipped_patches() -> None:
+def test_label_aid_leaves_out_clipped_patches() -> None:
     """With lines that saturate in both frames across most of the view, a gain of 1.10 reads
-    low when the patches touching them are kept (their clipped pixels stay at 255) and 1.10
-    when they are left out (`--unclipped`)."""
+    1.10 with the patches touching them left out (the default) and low when they are kept
+    (`--with-clipped`: their clipped pixels stay at 255)."""
     from validation import label_aid
 
     rng = np.random.default_rng(5)
@@ -281,11 +281,35 @@ def test_label_aid_can_leave_out_clipped_patches() -> None:
     shifted = np.vstack([np.roll(base, (5, 9), axis=(0, 1))[:240],
                          np.roll(base, (5, 2), axis=(0, 1))[240:]])
     b = np.clip(shifted * 1.10, 0, 255).astype(np.uint8)
-    kept, n = label_aid.pair_ratio(a, b)
-    left_out, n2 = label_aid.pair_ratio(a, b, unclipped=True)
+    kept, n = label_aid.pair_ratio(a, b, unclipped=False)
+    left_out, n2 = label_aid.pair_ratio(a, b)
     assert n >= 30 and n2 == n
     assert left_out == pytest.approx(1.10, abs=0.02)
     assert kept < left_out - 0.01
+    # where fewer than MIN_UNCLIPPED patches are free of clipping, every patch is read: a
+    # view saturated almost everywhere gives the same reading either way
+    base[:470:2, :] = 400.0
+    a = np.clip(base, 0, 255).astype(np.uint8)
+    shifted = np.vstack([np.roll(base, (5, 9), axis=(0, 1))[:240],
+                         np.roll(base, (5, 2), axis=(0, 1))[240:]])
+    b = np.clip(shifted * 1.10, 0, 255).astype(np.uint8)
+    assert label_aid.pair_ratio(a, b) == label_aid.pair_ratio(a, b, unclipped=False)
+
+
+def test_label_aid_check_names_each_kind_of_disagreement() -> None:
+    """`label_aid.py --check`: a step the labels miss, a step label under the 10 % line, a
+    healthy label at 6 % or more; agreement, an unlabelled 6-10 % frame and a frame without a
+    reading (too few matches) say nothing."""
+    from validation import label_aid
+
+    rec = {"labels": [[0, 3, "healthy"], [4, 4, "exposure_step"], [5, 5, "healthy"],
+                      [6, 6, "exposure_step"]]}
+    ratios = [(1, 1.01, 500), (2, 1.12, 500), (3, 1.07, 500), (4, 1.15, 500), (5, 0.95, 500),
+              (6, 1.08, 500), (7, 1.08, 500), (8, 1.30, 10)]
+    out = label_aid.label_disagreements(rec, ratios)
+    assert out == ["frame 2: +12.0%, a step, labelled ['healthy']",
+                   "frame 3: +7.0%, labelled healthy",
+                   "frame 6: +8.0%, under the step line, labelled exposure_step"]
 
 
 @pytest.mark.skipif(not (VALDATA / "dev" / "zed_lab").exists(),

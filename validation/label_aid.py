@@ -1,7 +1,8 @@
 """Measured aid to the exposure labels: the brightness ratio of the same surfaces between
 consecutive frames of a built validation recording.
 
-    python validation/label_aid.py [--unclipped] /work/valdata/dev/churchill_print [more...]
+    python validation/label_aid.py [--with-clipped] /work/valdata/dev/churchill_print [more...]
+    python validation/label_aid.py --check                       # labels against the aid
     python validation/label_aid.py --stride 2 /work/valdata/dev/kitti02_road.mcap
     python validation/label_aid.py --stride 2 --write-manifest   # every built recording
 
@@ -20,10 +21,16 @@ previous). The README's exposure criterion reads this number: at least 10 % brig
 is a step, 6-10 % is left unlabelled. The ratio is independent of every rule of frontdiag; it
 is printed with the number of verified matches it rests on (under 30 it is not used).
 
-`--unclipped` leaves out the patches holding a pixel at 0 or 255 in either frame (a clipped
-pixel does not follow a gain change). The labels were measured without it; it measures how
-much they depend on clipped patches (README: on sunny KITTI frames 79-90 % of the matched
-patches hold a saturated pixel).
+Patches holding a pixel at 0 or 255 in either frame are left out where at least 30 others
+remain: a clipped pixel does not follow a gain change, so on sunny KITTI frames, where 79-90 %
+of the matched patches hold a saturated pixel, the median of every patch read a +11 % step as
++6 % and a -15 % one as -9 % (README, "Labels", revision of 2026-11-29). `--with-clipped`
+reads every patch, the aid's reading before that revision.
+
+`--check` lists, per built recording labelled from this aid (all but the chequerboards, which
+have their own), the frames whose labels
+disagree with the exposure criterion as the aid reads it: a step not labelled, a step label
+under the line, a healthy label at 6 % or more.
 """
 
 from __future__ import annotations
@@ -64,7 +71,13 @@ def clipped(gray: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return patch_means(bad, xy) > 0
 
 
-def pair_ratio(a: np.ndarray, b: np.ndarray, unclipped: bool = False) -> tuple[float, int]:
+MIN_UNCLIPPED = MIN_VERIFIED  # unclipped patches the ratio needs before it leaves out clipped ones
+
+
+def pair_ratio(a: np.ndarray, b: np.ndarray, unclipped: bool = True) -> tuple[float, int]:
+    """Median ratio of 9x9 patch means of frame b over frame a at verified matches, and the
+    number of verified matches; with ``unclipped``, over the patches holding no clipped pixel
+    where at least MIN_UNCLIPPED of them remain."""
     orb = cv2.ORB.create(2000)
     ka, da = orb.detectAndCompute(a, None)
     kb, db = orb.detectAndCompute(b, None)
@@ -84,7 +97,9 @@ def pair_ratio(a: np.ndarray, b: np.ndarray, unclipped: bool = False) -> tuple[f
     ma, mb = patch_means(a, pa[ok]), patch_means(b, pb[ok])
     keep = (ma > 5) & (mb > 5)
     if unclipped:
-        keep &= ~clipped(a, pa[ok]) & ~clipped(b, pb[ok])
+        lit = keep & ~clipped(a, pa[ok]) & ~clipped(b, pb[ok])
+        if lit.sum() >= MIN_UNCLIPPED:
+            keep = lit
     if not keep.any():
         return float("nan"), int(ok.sum())
     return float(np.median(mb[keep] / ma[keep])), int(ok.sum())
@@ -96,7 +111,7 @@ exposure line, which validation/score.py reads them against; under it a gap of h
 is healthy)."""
 
 
-def gap_ratios(path: Path, n: int, unclipped: bool = False) -> list[tuple[int, float, int]]:
+def gap_ratios(path: Path, n: int, unclipped: bool = True) -> list[tuple[int, float, int]]:
     """(frame k, brightness ratio of frame k over frame k - n, verified matches) for every k."""
     out = []
     with open_recording(Path(path)) as rec:
@@ -137,8 +152,54 @@ def write_manifest(n: int, data: Path, manifest: Path) -> None:
     manifest.write_text(json.dumps(m, indent=1) + "\n")
 
 
+OWN_AID = ("chessboard",)
+"""Recordings whose exposure labels come from another aid (README, "Measured aids"): the
+chequerboards' white squares."""
+
+
+def label_disagreements(rec: dict[str, Any], ratios: list[tuple[int, float, int]]
+                        ) -> list[str]:
+    """Frames whose labels disagree with the exposure criterion read from ``ratios`` (stride
+    1): a step (|r - 1| >= 10 %) not labelled ``exposure_step``, an ``exposure_step`` under
+    10 %, a ``healthy`` frame at 6 % or more. Frames without a reading are not judged."""
+    from validation.score import EXPOSURE_STEP_CHANGE
+
+    labels: dict[int, set[str]] = {}
+    for first, last, cond in rec["labels"]:
+        for k in range(first, last + 1):
+            labels.setdefault(k, set()).add(cond)
+    out = []
+    for k, r, m in ratios:
+        if not np.isfinite(r) or m < MIN_VERIFIED:
+            continue
+        change, mine = abs(r - 1.0), labels.get(k, set())
+        if change >= EXPOSURE_STEP_CHANGE and "exposure_step" not in mine:
+            out.append(f"frame {k}: {r - 1:+.1%}, a step, labelled {sorted(mine) or 'nothing'}")
+        elif change < EXPOSURE_STEP_CHANGE and "exposure_step" in mine:
+            out.append(f"frame {k}: {r - 1:+.1%}, under the step line, labelled exposure_step")
+        elif change >= GAP_LISTED and "healthy" in mine:
+            out.append(f"frame {k}: {r - 1:+.1%}, labelled healthy")
+    return out
+
+
+def check_labels(data: Path, manifest: Path, unclipped: bool) -> int:
+    """Print the disagreements of every recording's labels with the aid; 1 if any."""
+    from validation.build import load_manifest, output_path
+
+    found = 0
+    for rec in load_manifest(manifest)["recordings"]:
+        if any(a in rec["name"] for a in OWN_AID):
+            continue
+        bad = label_disagreements(rec, gap_ratios(output_path(data, rec), 1, unclipped))
+        found += len(bad)
+        print(f"{rec['name']}: {len(bad)} disagreement(s)", flush=True)
+        for line in bad:
+            print(f"  {line}")
+    return 1 if found else 0
+
+
 def main(argv: list[str]) -> int:
-    unclipped = "--unclipped" in argv
+    unclipped = "--with-clipped" not in argv
     n = 1
     if "--stride" in argv:
         i = argv.index("--stride")
@@ -149,7 +210,11 @@ def main(argv: list[str]) -> int:
 
         write_manifest(n, DEFAULT_OUT, MANIFEST)
         return 0
-    paths = [a for a in argv if a != "--unclipped"]
+    if "--check" in argv:
+        from validation.build import DEFAULT_OUT, MANIFEST
+
+        return check_labels(DEFAULT_OUT, MANIFEST, unclipped)
+    paths = [a for a in argv if a not in ("--with-clipped", "--check")]
     if n > 1:
         for p in paths:
             for k, r, m in gap_ratios(Path(p), n, unclipped):
