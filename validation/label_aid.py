@@ -162,17 +162,14 @@ def label_disagreements(rec: dict[str, Any], ratios: list[tuple[int, float, int]
     """Frames whose labels disagree with the exposure criterion read from ``ratios`` (stride
     1): a step (|r - 1| >= 10 %) not labelled ``exposure_step``, an ``exposure_step`` under
     10 %, a ``healthy`` frame at 6 % or more. Frames without a reading are not judged."""
-    from validation.score import EXPOSURE_STEP_CHANGE
+    from validation.score import EXPOSURE_STEP_CHANGE, frame_labels
 
-    labels: dict[int, set[str]] = {}
-    for first, last, cond in rec["labels"]:
-        for k in range(first, last + 1):
-            labels.setdefault(k, set()).add(cond)
+    labels = frame_labels(rec)
     out = []
     for k, r, m in ratios:
         if not np.isfinite(r) or m < MIN_VERIFIED:
             continue
-        change, mine = abs(r - 1.0), labels.get(k, set())
+        change, mine = abs(r - 1.0), labels[k] if k < len(labels) else set()
         if change >= EXPOSURE_STEP_CHANGE and "exposure_step" not in mine:
             out.append(f"frame {k}: {r - 1:+.1%}, a step, labelled {sorted(mine) or 'nothing'}")
         elif change < EXPOSURE_STEP_CHANGE and "exposure_step" in mine:

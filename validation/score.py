@@ -74,6 +74,17 @@ def _gap_change(measured: dict[int, float | None] | None, k: int) -> float | Non
     return None if r is None else abs(float(r) - 1.0)
 
 
+def frame_labels(rec: dict[str, Any]) -> list[set[str]]:
+    """Each frame's set of labels, from the manifest's ``[first, last, condition]`` intervals
+    (frames after the last interval are not listed)."""
+    count = max((int(b) for _, b, _ in rec["labels"]), default=-1) + 1
+    per: list[set[str]] = [set() for _ in range(count)]
+    for a, b, cond in rec["labels"]:
+        for i in range(int(a), int(b) + 1):
+            per[i].add(str(cond))
+    return per
+
+
 def stride_labels(rec: dict[str, Any], frames: Any, n: int) -> Any:
     """Labels for the rows of a run at ``--stride n``, from the manifest's frame labels: each
     analysed frame k is compared with frame k - n, so its two-frame labels are those of the
@@ -88,13 +99,10 @@ def stride_labels(rec: dict[str, Any], frames: Any, n: int) -> Any:
     label form one interval (one episode), as the manifest's own labels do."""
     import pandas as pd
 
-    count = max((int(b) for _, b, _ in rec["labels"]), default=-1) + 1
+    per = frame_labels(rec)
+    count = len(per)
     listed = rec.get("gap_brightness", {}).get(str(n))
     measured = None if listed is None else {int(k): r for k, r in listed}
-    per: list[set[str]] = [set() for _ in range(count)]
-    for a, b, cond in rec["labels"]:
-        for i in range(int(a), int(b) + 1):
-            per[i].add(str(cond))
     rows: list[tuple[int, int, str]] = []
     open_: dict[str, list[int]] = {}  # label -> [start, end] of the run the last row continued
     first = True
