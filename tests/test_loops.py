@@ -1728,3 +1728,49 @@ def test_an_audit_says_when_cholmod_refused_its_matrices(monkeypatch) -> None:
     assert list(res.table["reason"]) == list(alone.table["reason"])
     monkeypatch.undo()
     assert "refused" not in summary(audit(g))["sparse_solver"]
+
+
+def _two_lap_walk(sigma: float, seed: int) -> object:
+    """Two laps of the same 2D walk, every pose of the second lap closing a loop to its twin
+    two poses apart along the first (50 loops, neighbours of one another), every measurement
+    perturbed by N(0, sigma²) per axis while the file states unit information."""
+    from frontdiag.loops import lie
+    from frontdiag.loops.graph import PoseGraph
+
+    rng = np.random.default_rng(seed)
+    lap = lie.se2(np.full(99, 1.0), np.zeros(99), np.full(99, 2 * np.pi / 100))
+    P = lie.prefix_products(np.concatenate([lap, lap[:1], lap]))  # 200 poses, lap 2 on lap 1
+    n = P.shape[0]
+    src = np.concatenate([np.arange(n - 1), np.arange(0, 100, 2)])
+    dst = np.concatenate([np.arange(1, n), np.arange(100, 200, 2)])
+    Z = lie.inv(P[src]) @ P[dst] @ lie.exp(rng.normal(0, sigma, (src.size, 3)), 2)
+    return PoseGraph(dim=2, ids=np.arange(n), src=src, dst=dst, Z=Z,
+                     info=np.tile(np.eye(3), (src.size, 1, 1)),
+                     line=np.zeros(src.size, np.int64), flipped=np.zeros(src.size, bool))
+
+
+def test_loose_information_is_read_twice_and_calibrate_uses_the_cycles_reading() -> None:
+    """Covariances stated 100x too loose (sigma 0.1 where the file says 1): the note gives the
+    loops' median χ² against their chains and the pairwise cycles' lower quartile, both near
+    0.01, and points at --sqrt-info and --calibrate; the cycles' figure is the factor
+    --calibrate applies, after which the chains read about right and the note is gone."""
+    import re
+
+    from frontdiag.loops.audit import calibrate_information
+
+    g = _two_lap_walk(0.1, seed=4)
+    plain = audit(g, verify=False)
+    note = next(n for n in plain.notes if n.startswith("the median loop χ²"))
+    chain_x, cycle_x = (float(v) for v in re.findall(
+        r"χ² is ([0-9.e+-]+)× .*lower quartile ([0-9.e+-]+)×", note)[0])
+    assert 0.003 < chain_x < 0.03 and 0.003 < cycle_x < 0.03
+    assert "--sqrt-info" in note and "--calibrate" in note
+    odo = g.odometry_mask()
+    window = int(plain.rules.by_statistic("pcm").param("window"))
+    _, s = calibrate_information(g, odo, np.flatnonzero(~odo), window)
+    assert f"{s:.2g}" == f"{cycle_x:.2g}"
+    cal = audit(g, verify=False, calibrate=True)
+    assert cal.calibration == pytest.approx(s)
+    assert not any(n.startswith("the median loop χ²") for n in cal.notes)
+    ratio = float(np.median(cal.table["chi2"])) / 2.366  # χ²_3 median
+    assert 0.3 < ratio < 3.0
