@@ -23,10 +23,20 @@ frontdiag/loops/inject.py) and every share of the true loop count (10/30/50 %), 
              recall / retention, and the ratio of times (same process, same machine load)
 
     python benchmarks/bench_loops.py [--graphs M3500,intel] [--kinds random] [--fractions 0.1]
-                                     [--gnc first|all|none] [--seed 1]
+                                     [--gnc first|all|none] [--seed 1] [--repeat 1]
+                                     [--calibrate]
 
 A graph with overconfident edges (FD-LOP-005: intel) is capped as the audit caps it before
 anything runs, so that the audit, GNC and the ATE maps all solve the same graph.
+
+``--repeat N`` times the audit and GNC N times each on every configuration and reports the median
+of each (the verdicts and GNC's weights are the same every run: both are deterministic). On a
+small graph one run is at the mercy of the machine: CSAIL's audit takes 0.16-0.27 s from one
+call to the next in one process.
+
+``--calibrate`` runs every audit (the clean graph's included) with ``calibrate=True``, as
+``frontdiag loops --calibrate``: every covariance scaled by the pairwise cycles' reading
+(docs/loops.md, "--calibrate"). GNC and the ATE maps keep the file's covariances.
 
 GNC needs the loops-opt extra (GTSAM); without it the GNC columns are empty. Times on a shared
 machine are noisy: compare the ratio, measured in the same run.
@@ -77,14 +87,14 @@ def gnc(graph, odo, init):  # type: ignore[no-untyped-def]
     return secs, w >= 0.5
 
 
-def _solver_ab(g, res, secs):  # type: ignore[no-untyped-def]
+def _solver_ab(g, res, secs, calibrate=False):  # type: ignore[no-untyped-def]
     """The same audit with the factorisation forced to QDLDL: its time and whether its table's
     verdicts, rules and reasons equal those of ``res``."""
     before = os.environ.get(SOLVER_ENV)
     os.environ[SOLVER_ENV] = "qdldl"
     try:
         t0 = time.perf_counter()
-        ref = audit(g)
+        ref = audit(g, calibrate=calibrate)
         ref_s = time.perf_counter() - t0
     finally:
         if before is None:
@@ -106,6 +116,10 @@ def main() -> int:
                     help="GNC on the first configuration of each graph, on all, or none")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--json", type=Path, default=None, help="also write the rows as JSON")
+    ap.add_argument("--repeat", type=int, default=1,
+                    help="time the audit and GNC this many times each; report the medians")
+    ap.add_argument("--calibrate", action="store_true",
+                    help="audit with the covariances scaled by the pairwise cycles")
     ap.add_argument("--solver-ab", action="store_true",
                     help="also audit each configuration with QDLDL forced and compare")
     args = ap.parse_args()
@@ -153,15 +167,18 @@ def main() -> int:
         drop[rng.choice(true_loops, max(1, int(0.02 * true_loops.size)), replace=False)] = False
         P_drop, _ = solve(clean, drop, start(clean, drop))
         fold_at = 1.5 * ate(P_drop, P_ref)
-        self_kept = audit(clean).kept_edges()
+        self_kept = audit(clean, calibrate=args.calibrate).kept_edges()
         P_self, _ = solve(clean, self_kept, start(clean, self_kept))
         first = True
         for kind in kinds:
             for frac in fracs:
                 g, false = inject_false_loops(clean, frac, kind, seed=args.seed)
-                t0 = time.perf_counter()
-                res = audit(g)
-                secs = time.perf_counter() - t0
+                times = []
+                for _ in range(max(1, args.repeat)):
+                    t0 = time.perf_counter()
+                    res = audit(g, calibrate=args.calibrate)
+                    times.append(time.perf_counter() - t0)
+                secs = float(np.median(times))
                 t = res.table
                 fl = false[t["edge"].to_numpy()]
                 refused = (t["verdict"] != "ok").to_numpy()
@@ -182,14 +199,17 @@ def main() -> int:
                        "retention_self": retain_self,
                        "ate_kept_m": a_kept, "ate_all_m": a_all, "fold_at_m": fold_at,
                        "ate_self_m": a_self, "clean_refused": int((~self_kept).sum()),
-                       "folded": bool(a_kept > fold_at), "audit_s": secs}
+                       "folded": bool(a_kept > fold_at), "audit_s": secs,
+                       "repeat": max(1, args.repeat)}
                 gs = grec = gret = ratio = float("nan")
                 if args.gnc == "all" or (args.gnc == "first" and first):
                     try:
                         # GNC from the odometry chain, its usual start: from the chordal
                         # start of every edge (false loops included) it kept 0.82 of M3500's
                         # true loops in 135 s instead of 0.98 in 25-33 s
-                        gs, inl = gnc(g, g.odometry_mask(), chain_P)
+                        runs = [gnc(g, g.odometry_mask(), chain_P)
+                                for _ in range(max(1, args.repeat))]
+                        gs, inl = float(np.median([r[0] for r in runs])), runs[-1][1]
                         lf = false & ~g.odometry_mask()
                         lt = ~false & ~g.odometry_mask()
                         grec, gret = float((~inl[lf]).mean()), float(inl[lt].mean())
@@ -200,11 +220,11 @@ def main() -> int:
                                 "speedup": ratio})
                 first = False
                 if args.solver_ab:
-                    row.update(_solver_ab(g, res, secs))
+                    row.update(_solver_ab(g, res, secs, args.calibrate))
                 rows.append(row)
                 print(f"{entry['name']:<15}{kind:<9}{frac * 100:>6.0f}%{row['n_false']:>8}"
                       f"{recall:>8.3f}{retain:>8.3f}{retain_self:>9.3f}{a_kept:>9.3f}{a_all:>9.2f}{fold_at:>8.3f}"
-                      f"{'YES' if row['folded'] else 'no':>7}{a_self:>8.3f}{secs:>9.1f}{gs:>8.1f}"
+                      f"{'YES' if row['folded'] else 'no':>7}{a_self:>8.3f}{secs:>9.2f}{gs:>8.2f}"
                       f"{grec:>8.3f}"
                       f"{gret:>8.3f}{ratio:>6.1f}", flush=True)
                 if args.solver_ab:
