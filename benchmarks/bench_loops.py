@@ -106,15 +106,21 @@ def _solver_ab(g, res, secs, calibrate=False):  # type: ignore[no-untyped-def]
     return {"solver": solver_label(g.k), "qdldl_s": ref_s, "same": same}
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def common_args(ap: argparse.ArgumentParser) -> None:
+    """The options every loop benchmark takes: where the graphs are, which graphs, which kinds
+    and shares of false loops, and the seed of their injection."""
     ap.add_argument("--data", type=Path, default=HERE / "data" / "loops")
     ap.add_argument("--graphs", default="")
     ap.add_argument("--kinds", default=",".join(KINDS))
     ap.add_argument("--fractions", default="0.1,0.3,0.5")
+    ap.add_argument("--seed", type=int, default=1)
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    common_args(ap)
     ap.add_argument("--gnc", choices=("first", "all", "none"), default="first",
                     help="GNC on the first configuration of each graph, on all, or none")
-    ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--json", type=Path, default=None, help="also write the rows as JSON")
     ap.add_argument("--repeat", type=int, default=1,
                     help="time the audit and GNC this many times each; report the medians")

@@ -1,5 +1,8 @@
 """Fetch the public pose graphs listed in benchmarks/loops_data.json into benchmarks/data/loops/.
 
+Also the held-out graphs of benchmarks/loops_heldout.json and their ground-truth poses (for
+benchmarks/bench_loops_gt.py).
+
 Each file comes from a pinned commit of a public repository (a shallow, blob-filtered git fetch
 of that one commit, then `git show COMMIT:PATH`) and is checked against its sha256. The files
 stay out of git (benchmarks/data/ is ignored).
@@ -80,6 +83,10 @@ def main() -> int:
     for entry in json.loads((HERE / "loops_data.json").read_text())["graphs"]:
         path = fetch(entry, args.out, args.local)
         print(f"{entry['name']:<15} {path}")
+    for held in json.loads((HERE / "loops_heldout.json").read_text())["graphs"]:
+        for part in ("graph", "ground_truth"):
+            path = fetch(held[part], args.out, args.local)
+            print(f"{held['name']:<15} {path}")
     return 0
 
 

@@ -1774,3 +1774,33 @@ def test_loose_information_is_read_twice_and_calibrate_uses_the_cycles_reading()
     assert not any(n.startswith("the median loop χ²") for n in cal.notes)
     ratio = float(np.median(cal.table["chi2"])) / 2.366  # χ²_3 median
     assert 0.3 < ratio < 3.0
+
+
+def test_held_out_kitti_labels_agree_with_the_ground_truth() -> None:
+    """benchmarks/bench_loops_gt.py reads KITTI's ground truth in the graphs' own planar frame:
+    on kitti_07 every published edge (odometry and loops) is labelled true, the odometry steps
+    agree with the ground truth to centimetres, and a loop moved by 3 m is labelled false."""
+    import importlib.util
+
+    root = Path(__file__).resolve().parents[1]
+    data = root / "benchmarks/data/loops"
+    if not (data / "kitti_07.g2o").exists() or not (data / "kitti_07_gt.txt").exists():
+        pytest.skip("held-out graphs not fetched (python benchmarks/fetch_loops_data.py)")
+    spec = importlib.util.spec_from_file_location("bench_loops_gt",
+                                                  root / "benchmarks/bench_loops_gt.py")
+    assert spec is not None and spec.loader is not None
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    g = read_graph(data / "kitti_07.g2o")
+    G = bench.ground_truth_2d(data / "kitti_07_gt.txt")
+    assert not bench.label_false(g, G, 2.0, 5.0).any()
+    odo = g.odometry_mask()
+    T = np.linalg.inv(G[g.ids[g.src]]) @ G[g.ids[g.dst]]
+    step = np.hypot(*(g.Z[odo, :2, 2] - T[odo, :2, 2]).T)
+    assert np.median(step) < 0.02
+    moved = g.Z.copy()
+    loop = int(np.flatnonzero(~odo)[0])
+    moved[loop, 0, 2] += 3.0
+    from dataclasses import replace
+    flags = bench.label_false(replace(g, Z=moved), G, 2.0, 5.0)
+    assert flags[loop] and flags.sum() == 1
