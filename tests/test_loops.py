@@ -1730,10 +1730,11 @@ def test_an_audit_says_when_cholmod_refused_its_matrices(monkeypatch) -> None:
     assert "refused" not in summary(audit(g))["sparse_solver"]
 
 
-def _two_lap_walk(sigma: float, seed: int) -> object:
+def _two_lap_walk(sigma: float, seed: int, info: float = 1.0) -> object:
     """Two laps of the same 2D walk, every pose of the second lap closing a loop to its twin
     two poses apart along the first (50 loops, neighbours of one another), every measurement
-    perturbed by N(0, sigma²) per axis while the file states unit information."""
+    perturbed by N(0, sigma²) per axis while the file states information ``info`` (unit by
+    default)."""
     from frontdiag.loops import lie
     from frontdiag.loops.graph import PoseGraph
 
@@ -1745,7 +1746,7 @@ def _two_lap_walk(sigma: float, seed: int) -> object:
     dst = np.concatenate([np.arange(1, n), np.arange(100, 200, 2)])
     Z = lie.inv(P[src]) @ P[dst] @ lie.exp(rng.normal(0, sigma, (src.size, 3)), 2)
     return PoseGraph(dim=2, ids=np.arange(n), src=src, dst=dst, Z=Z,
-                     info=np.tile(np.eye(3), (src.size, 1, 1)),
+                     info=np.tile(info * np.eye(3), (src.size, 1, 1)),
                      line=np.zeros(src.size, np.int64), flipped=np.zeros(src.size, bool))
 
 
@@ -1804,3 +1805,16 @@ def test_held_out_kitti_labels_agree_with_the_ground_truth() -> None:
     from dataclasses import replace
     flags = bench.label_false(replace(g, Z=moved), G, 2.0, 5.0)
     assert flags[loop] and flags.sum() == 1
+
+
+def test_tight_information_gets_the_same_two_readings() -> None:
+    """Covariances stated 100x too tight (sigma 0.01 where the measurements carry 0.1): the note
+    reads both factors near 100, says true loops may be refused and points at --calibrate."""
+    import re
+
+    g = _two_lap_walk(0.1, seed=4, info=1e4)
+    note = next(n for n in audit(g, verify=False).notes if n.startswith("the median loop χ²"))
+    chain_x, cycle_x = (float(v) for v in re.findall(
+        r"χ² is ([0-9.e+-]+)× .*lower quartile ([0-9.e+-]+)×", note)[0])
+    assert 30 < chain_x < 300 and 30 < cycle_x < 300
+    assert "too large" in note and "--calibrate" in note

@@ -101,29 +101,32 @@ def _overconfident_rows(result: LoopAudit, top: int) -> dict[str, Any]:
             "stiffest": rows}
 
 
-def _calibration_note(t: pd.DataFrame, k: int, cycle_scale: float) -> str | None:
+def _calibration_note(t: pd.DataFrame, k: int, cycles: Callable[[], float]) -> str | None:
     """What the loops' χ² against their chains say of the file's covariances, where they are
-    off by more than 10x; ``cycle_scale`` is the factor ``--calibrate`` would apply (the
-    pairwise cycles' own reading, NaN when too few were tested)."""
+    off by more than 10x; ``cycles()`` gives the factor ``--calibrate`` would apply (the
+    pairwise cycles' own reading, NaN when too few can be tested), read only then."""
     chi = t["chi2"].to_numpy(dtype=float)
     chi = chi[np.isfinite(chi)]
     if chi.size < 20:
         return None
     ratio = float(np.median(chi)) / pcm.threshold(k, 0.5)
-    cycles = (f", the pairwise cycles' lower quartile {cycle_scale:.2g}×"
-              if np.isfinite(cycle_scale) else "")
+    if 0.1 <= ratio <= 10:
+        return None
+    scale = cycles()
+    both = (f"the median loop χ² is {ratio:.2g}× what correct covariances give"
+            + (f", the pairwise cycles' lower quartile {scale:.2g}×" if np.isfinite(scale) else ""))
     if ratio < 0.1:
-        return (f"the median loop χ² is {ratio:.2g}× what correct covariances give{cycles}: the "
+        return (f"{both}: the "
                 "file's information looks too small, so the chain test is weak. If the file "
                 "stores square-root information, read it with --sqrt-info; if every covariance "
                 "is off by one factor, --calibrate scales them by the pairwise cycles; but where "
                 "the loops are far more precise than the odometry, one factor makes the chains "
                 "too stiff and true loops are refused: compare the kept loops with and without "
                 "it (docs/loops.md, --calibrate)")
-    if ratio > 10:
-        return (f"the median loop χ² is {ratio:.2g}× what correct covariances give: the file's "
-                "information looks too large (or squared), so true loops may be refused")
-    return None
+    return (f"{both}: the file's information looks too large (or squared), so true loops may "
+            "be refused. If every covariance is off by one factor, --calibrate scales them by the "
+            "pairwise cycles; it also takes the tests' power over false loops down with them, so "
+            "compare the kept loops with and without it (docs/loops.md, --calibrate)")
 
 
 def audit(graph: PoseGraph, rules: LoopRules | None = None, *, odom_max_gap: int = 1,
@@ -257,7 +260,9 @@ def _audit(graph: PoseGraph, rules: LoopRules | None, *, odom_max_gap: int, veri
         timings["map_s"] = time.perf_counter() - t2
     _untestable(result)
     _overconfident_loops(result, file_graph)
-    note = _calibration_note(result.table, k, cycle_scale(pchi[tested], k))
+    # the pair test's cycles are every candidate pair's where the chain test refused no loop
+    note = _calibration_note(result.table, k, (lambda: cycle_scale(pchi, k)) if not bad1.any()
+                             else lambda: cycle_reading(graph, odo, loops, int(r2.param("window"))))
     if note:
         result.notes.append(note)
     if no_loops:
@@ -278,18 +283,24 @@ def calibrate_information(graph: PoseGraph, odo: np.ndarray, loops: np.ndarray,
     """
     from dataclasses import replace
 
-    chain = build_chain(graph, odo)
-    pairs = pcm.candidate_pairs(graph.src[loops], graph.dst[loops], window)
-    s = cycle_scale(pcm.pair_chi2(graph, chain, loops, pairs), graph.k)
+    s = cycle_reading(graph, odo, loops, window)
     if not np.isfinite(s):
         return graph, 1.0
     return replace(graph, info=graph.info / s), s
 
 
+def cycle_reading(graph: PoseGraph, odo: np.ndarray, loops: np.ndarray, window: int) -> float:
+    """The covariance scale the pairwise cycles of every candidate pair read: their
+    lower-quartile χ² over χ²_k's (see :func:`calibrate_information`); NaN under 20 finite
+    cycles or where it is not positive."""
+    chain = build_chain(graph, odo)
+    pairs = pcm.candidate_pairs(graph.src[loops], graph.dst[loops], window)
+    return cycle_scale(pcm.pair_chi2(graph, chain, loops, pairs), graph.k)
+
+
 def cycle_scale(pair_chi2: np.ndarray, k: int) -> float:
-    """The covariance scale the pairwise cycles read: their lower-quartile χ² over χ²_k's
-    (see :func:`calibrate_information`); NaN under 20 finite cycles or where it is not
-    positive."""
+    """Lower-quartile χ² of the finite ``pair_chi2`` over χ²_k's; NaN under 20 of them or where
+    it is not positive."""
     chi = pair_chi2[np.isfinite(pair_chi2)]
     if chi.size < 20:
         return float("nan")
