@@ -1777,21 +1777,28 @@ def test_loose_information_is_read_twice_and_calibrate_uses_the_cycles_reading()
     assert 0.3 < ratio < 3.0
 
 
-def test_held_out_kitti_labels_agree_with_the_ground_truth() -> None:
-    """benchmarks/bench_loops_gt.py reads KITTI's ground truth in the graphs' own planar frame:
-    on kitti_07 every published edge (odometry and loops) is labelled true, the odometry steps
-    agree with the ground truth to centimetres, and a loop moved by 3 m is labelled false."""
+def _held_out_bench(*files: str) -> tuple[object, Path]:
+    """benchmarks/bench_loops_gt.py as a module, and the folder of the fetched graphs; skips
+    where ``files`` are not there."""
     import importlib.util
 
     root = Path(__file__).resolve().parents[1]
     data = root / "benchmarks/data/loops"
-    if not (data / "kitti_07.g2o").exists() or not (data / "kitti_07_gt.txt").exists():
+    if not all((data / f).exists() for f in files):
         pytest.skip("held-out graphs not fetched (python benchmarks/fetch_loops_data.py)")
     spec = importlib.util.spec_from_file_location("bench_loops_gt",
                                                   root / "benchmarks/bench_loops_gt.py")
     assert spec is not None and spec.loader is not None
     bench = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(bench)
+    return bench, data
+
+
+def test_held_out_kitti_labels_agree_with_the_ground_truth() -> None:
+    """benchmarks/bench_loops_gt.py reads KITTI's ground truth in the graphs' own planar frame:
+    on kitti_07 every published edge (odometry and loops) is labelled true, the odometry steps
+    agree with the ground truth to centimetres, and a loop moved by 3 m is labelled false."""
+    bench, data = _held_out_bench("kitti_07.g2o", "kitti_07_gt.txt")
     g = read_graph(data / "kitti_07.g2o")
     G = bench.ground_truth_2d(data / "kitti_07_gt.txt")
     assert not bench.label_false(g, G, 2.0, 5.0).any()
@@ -1818,3 +1825,17 @@ def test_tight_information_gets_the_same_two_readings() -> None:
         r"χ² is ([0-9.e+-]+)× .*lower quartile ([0-9.e+-]+)×", note)[0])
     assert 30 < chain_x < 300 and 30 < cycle_x < 300
     assert "too large" in note and "--calibrate" in note
+
+
+def test_held_out_city10000_ground_truth_is_its_noise_free_copy() -> None:
+    """city10000's true poses are its noise-free copy's odometry composed: every edge of the
+    published graph, odometry and loops, is then within centimetres of them (the simulated
+    noise), so none is labelled false."""
+    bench, data = _held_out_bench("city10000.g2o", "city10000_gt.g2o")
+    g = read_graph(data / "city10000.g2o")
+    G = bench.exact_poses(data / "city10000_gt.g2o")
+    assert G.shape == (g.n_vertices, 3, 3)
+    T = np.linalg.inv(G[g.ids[g.src]]) @ G[g.ids[g.dst]]
+    err = np.hypot(*(g.Z[:, :2, 2] - T[:, :2, 2]).T)
+    assert np.median(err) < 0.05 and err.max() < 0.5
+    assert not bench.label_false(g, G, 2.0, 5.0).any()
