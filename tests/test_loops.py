@@ -1839,3 +1839,31 @@ def test_held_out_city10000_ground_truth_is_its_noise_free_copy() -> None:
     err = np.hypot(*(g.Z[:, :2, 2] - T[:, :2, 2]).T)
     assert np.median(err) < 0.05 and err.max() < 0.5
     assert not bench.label_false(g, G, 2.0, 5.0).any()
+
+
+def test_a_2d_system_whose_factor_fills_in_moves_to_cholmod(monkeypatch) -> None:
+    """A 2D graph's normal matrix starts with QDLDL; where its factor holds more than
+    FILL_SWITCH nonzeros (loops joining distant poses) CHOLMOD takes it and the next system of
+    the same size, with the same solution; with the backend forced to QDLDL nothing moves."""
+    pytest.importorskip("cvxopt")
+    import frontdiag.loops.solve as S
+    from frontdiag.loops.solve import Factor, linearise, normal_equations
+
+    g, P = _noisy_graph(2, seed=3)
+    lin = linearise(P, g.src, g.dst, g.Z, np.tile(np.eye(3), (g.n_edges, 1, 1)), g.n_vertices)
+    H, grad = normal_equations(lin, g.src, g.dst, g.n_vertices, 1e-8)
+    small = Factor(H, 3)
+    assert small.backend == "qdldl"
+    nnz = int(small._impl._f.factors()[0].nnz)
+    monkeypatch.setattr(S, "_BIG_FILL", {})
+    monkeypatch.setattr(S, "FILL_SWITCH", nnz - 1)
+    moved = Factor(H, 3)
+    assert moved.backend == "cholmod"
+    assert np.allclose(moved.solve(grad), small.solve(grad), rtol=1e-9, atol=1e-12)
+    assert Factor(H, 3).backend == "cholmod"  # the same size starts supernodal
+    monkeypatch.setattr(S, "_BIG_FILL", {})
+    monkeypatch.setattr(S, "FILL_SWITCH", nnz)
+    assert Factor(H, 3).backend == "qdldl"  # at the line, not over it
+    monkeypatch.setattr(S, "FILL_SWITCH", nnz - 1)
+    monkeypatch.setenv(S.SOLVER_ENV, "qdldl")
+    assert Factor(H, 3).backend == "qdldl"

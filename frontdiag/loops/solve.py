@@ -387,6 +387,27 @@ class _Cholmod:
         return out.ravel() if b.ndim == 1 else out
 
 
+FILL_SWITCH = 1_000_000
+"""Nonzeros of QDLDL's factor above which a 2D graph's system goes to CHOLMOD (where cvxopt is
+installed and no backend is forced). Loops that join distant poses fill the factor in; past
+about a million nonzeros CHOLMOD's supernodes pay for their set-up many times over: M3500 with
+every one of 977 random false loops in the map, 1.9 M nonzeros, 1.9 s a refactorisation with
+QDLDL against 0.31 s with CHOLMOD; city10000 with 10 % grouped ones, 4.7 M, 5.9 against 0.74 s.
+Below it QDLDL is as fast or faster (city10000 as published, 1.0 M: 59 against 67 ms;
+docs/loops.md, "Sparse factorisation")."""
+
+_BIG_FILL: dict[int, bool] = {}
+"""Sizes of system (unknowns) whose QDLDL factor passed FILL_SWITCH in this process: a later
+system of the same size starts with CHOLMOD (an audit factorises many systems of one graph)."""
+
+
+def _may_switch(k: int | None) -> bool:
+    """Whether a QDLDL factorisation may move to CHOLMOD: 2D graphs under ``auto`` with cvxopt
+    installed (3D graphs are CHOLMOD's from the start)."""
+    want = os.environ.get(SOLVER_ENV, "auto").strip().lower() or "auto"
+    return k == 3 and want == "auto" and cholmod_available()
+
+
 class Factor:
     """A factorisation of a symmetric positive definite matrix (QDLDL or CHOLMOD, see
     :func:`sparse_backend`); ``update`` refactorises new values on the same pattern without
@@ -401,12 +422,26 @@ class Factor:
         self._impl: _Qdldl | _Cholmod = self._factorise(T)
 
     def _factorise(self, T: sp.csc_matrix) -> _Qdldl | _Cholmod:
+        if self.backend == "qdldl" and _BIG_FILL.get(T.shape[0]) and _may_switch(self.k):
+            self.backend = "cholmod"  # this size of system filled in before: start supernodal
         if self.backend == "cholmod":
             try:
                 return _Cholmod(T)
             except ArithmeticError:
                 return self._to_ldlt(T)
-        return _Qdldl(T)
+        q = _Qdldl(T)
+        if _may_switch(self.k):
+            fill = int(q._f.factors()[0].nnz)
+            if fill > FILL_SWITCH:
+                log.info("QDLDL's factor holds %d nonzeros: CHOLMOD factorises this system", fill)
+                _BIG_FILL[T.shape[0]] = True
+                try:
+                    c = _Cholmod(T)
+                except ArithmeticError:
+                    return q
+                self.backend = "cholmod"
+                return c
+        return q
 
     def _to_ldlt(self, T: sp.csc_matrix) -> _Qdldl:
         """Cholesky needs a definite matrix; LDLᵀ carries on through a pivot that is zero to
