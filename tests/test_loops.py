@@ -1844,7 +1844,8 @@ def test_held_out_city10000_ground_truth_is_its_noise_free_copy() -> None:
 def test_a_2d_system_whose_factor_fills_in_moves_to_cholmod(monkeypatch) -> None:
     """A 2D graph's normal matrix starts with QDLDL; where its factor holds more than
     FILL_SWITCH nonzeros (loops joining distant poses) CHOLMOD takes it and the next system of
-    the same size, with the same solution; with the backend forced to QDLDL nothing moves."""
+    the same size, with the same solution, until an audit starts its own memo; with the
+    backend forced to QDLDL nothing moves."""
     pytest.importorskip("cvxopt")
     import frontdiag.loops.solve as S
     from frontdiag.loops.solve import Factor, linearise, normal_equations
@@ -1854,7 +1855,7 @@ def test_a_2d_system_whose_factor_fills_in_moves_to_cholmod(monkeypatch) -> None
     H, grad = normal_equations(lin, g.src, g.dst, g.n_vertices, 1e-8)
     small = Factor(H, 3)
     assert small.backend == "qdldl"
-    nnz = int(small._impl._f.factors()[0].nnz)
+    nnz = int(small._impl.factors()[0].nnz)
     monkeypatch.setattr(S, "_BIG_FILL", {})
     monkeypatch.setattr(S, "FILL_SWITCH", nnz - 1)
     moved = Factor(H, 3)
@@ -1864,6 +1865,15 @@ def test_a_2d_system_whose_factor_fills_in_moves_to_cholmod(monkeypatch) -> None
     monkeypatch.setattr(S, "_BIG_FILL", {})
     monkeypatch.setattr(S, "FILL_SWITCH", nnz)
     assert Factor(H, 3).backend == "qdldl"  # at the line, not over it
+    monkeypatch.setattr(S, "FILL_SWITCH", nnz - 1)
+    assert Factor(H, 3).backend == "cholmod"
+    monkeypatch.setattr(S, "FILL_SWITCH", nnz)
+    assert Factor(H, 3).backend == "cholmod"  # remembered from the line above
+    monkeypatch.setattr(S, "FILL_SWITCH", 10**12)
+    audit(g)  # another audit: the memo is its own
+    assert not S._BIG_FILL
+    monkeypatch.setattr(S, "FILL_SWITCH", nnz)
+    assert Factor(H, 3).backend == "qdldl"
     monkeypatch.setattr(S, "FILL_SWITCH", nnz - 1)
     monkeypatch.setenv(S.SOLVER_ENV, "qdldl")
     assert Factor(H, 3).backend == "qdldl"

@@ -29,7 +29,7 @@ from frontdiag.loops import pcm
 from frontdiag.loops.chain import Chain, build_chain
 from frontdiag.loops.graph import GraphError, PoseGraph
 from frontdiag.loops.rules import LoopRules, load_loop_rules
-from frontdiag.loops.solve import ldlt_fallbacks, solver_label
+from frontdiag.loops.solve import forget_fill, ldlt_fallbacks, solver_label
 from frontdiag.loops.stats import LoopStats, loop_stats
 from frontdiag.loops.stiffness import (
     AXES,
@@ -154,6 +154,7 @@ def _audit(graph: PoseGraph, rules: LoopRules | None, *, odom_max_gap: int, veri
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     fallbacks0 = ldlt_fallbacks()
+    forget_fill()
     odo = graph.odometry_mask(odom_max_gap)
     if graph.n_edges and not odo.any():
         raise GraphError(graph.path, f"no odometry: none of its {graph.n_edges} edges joins two "
@@ -262,7 +263,8 @@ def _audit(graph: PoseGraph, rules: LoopRules | None, *, odom_max_gap: int, veri
     _overconfident_loops(result, file_graph)
     # the pair test's cycles are every candidate pair's where the chain test refused no loop
     note = _calibration_note(result.table, k, (lambda: cycle_scale(pchi, k)) if not bad1.any()
-                             else lambda: cycle_reading(graph, odo, loops, int(r2.param("window"))))
+                             else lambda: cycle_reading(graph, odo, loops, int(r2.param("window")),
+                                                        chain))
     if note:
         result.notes.append(note)
     if no_loops:
@@ -289,11 +291,14 @@ def calibrate_information(graph: PoseGraph, odo: np.ndarray, loops: np.ndarray,
     return replace(graph, info=graph.info / s), s
 
 
-def cycle_reading(graph: PoseGraph, odo: np.ndarray, loops: np.ndarray, window: int) -> float:
+def cycle_reading(graph: PoseGraph, odo: np.ndarray, loops: np.ndarray, window: int,
+                  chain: Chain | None = None) -> float:
     """The covariance scale the pairwise cycles of every candidate pair read: their
     lower-quartile χ² over χ²_k's (see :func:`calibrate_information`); NaN under 20 finite
-    cycles or where it is not positive."""
-    chain = build_chain(graph, odo)
+    cycles or where it is not positive. ``chain``: the odometry chain of ``graph`` where the
+    caller holds it already."""
+    if chain is None:
+        chain = build_chain(graph, odo)
     pairs = pcm.candidate_pairs(graph.src[loops], graph.dst[loops], window)
     return cycle_scale(pcm.pair_chi2(graph, chain, loops, pairs), graph.k)
 

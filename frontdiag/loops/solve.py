@@ -202,6 +202,14 @@ def cholmod_available() -> bool:
     return importlib.util.find_spec("cvxopt") is not None
 
 
+def _solver_wanted() -> str:
+    """``FRONTDIAG_LOOPS_SOLVER``, checked: one of :data:`SOLVERS`."""
+    want = os.environ.get(SOLVER_ENV, "auto").strip().lower() or "auto"
+    if want not in SOLVERS:
+        raise ConfigError(f"{SOLVER_ENV}={want!r}: choose one of {', '.join(SOLVERS)}")
+    return want
+
+
 def sparse_backend(k: int | None) -> str:
     """The factorisation for the normal matrices of a graph of tangent dimension k (3 in 2D,
     6 in 3D): ``qdldl`` or ``cholmod``.
@@ -215,9 +223,7 @@ def sparse_backend(k: int | None) -> str:
     faster (CSAIL 0.2 against 0.4 ms), so 2D stays with it. ``FRONTDIAG_LOOPS_SOLVER`` forces
     either. Both are direct factorisations of the same matrix: their solutions agree to about
     1e-10 of themselves (docs/loops.md has the audits side by side)."""
-    want = os.environ.get(SOLVER_ENV, "auto").strip().lower() or "auto"
-    if want not in SOLVERS:
-        raise ConfigError(f"{SOLVER_ENV}={want!r}: choose one of {', '.join(SOLVERS)}")
+    want = _solver_wanted()
     if want == "qdldl":
         return "qdldl"
     if want == "cholmod":
@@ -293,10 +299,19 @@ class _Qdldl:
         # upper=True: T is the upper triangle already, which spares QDLDL its own triu copy
         self._f = qdldl.Solver(T, upper=True)
         self._tree: _Etree | None = None
+        self._factors: tuple[Any, Any, Any] | None = None
 
     def update(self, T: sp.csc_matrix) -> None:
         self._f.update(T, upper=True)
         self._tree = None
+        self._factors = None
+
+    def factors(self) -> tuple[Any, Any, Any]:
+        """QDLDL's factors (L, D, the ordering), copied out of the solver once per
+        factorisation: the fill count and the elimination tree read the same copy."""
+        if self._factors is None:
+            self._factors = self._f.factors()
+        return self._factors
 
     def quadratic(self, rows: NDArray[np.intp], B: F) -> F | None:
         """Bᵀ H⁻¹ B for a B whose only nonzero rows are ``rows`` (values ``B``), from the
@@ -310,7 +325,8 @@ class _Qdldl:
         (M3500's groups: about 600 of 10 500), so a dense triangle of that size replaces a
         forward and a backward pass over the whole factor per column."""
         if self._tree is None:
-            self._tree = _Etree(self._f.factors())
+            self._tree = _Etree(self.factors())
+            self._factors = None  # the tree holds what it needs
         t = self._tree
         R = t.reach(t.pinv[rows])
         if R.size > REACH_DENSE_MAX:
@@ -397,15 +413,21 @@ Below it QDLDL is as fast or faster (city10000 as published, 1.0 M: 59 against 6
 docs/loops.md, "Sparse factorisation")."""
 
 _BIG_FILL: dict[int, bool] = {}
-"""Sizes of system (unknowns) whose QDLDL factor passed FILL_SWITCH in this process: a later
-system of the same size starts with CHOLMOD (an audit factorises many systems of one graph)."""
+"""Sizes of system (unknowns) whose QDLDL factor passed FILL_SWITCH since :func:`forget_fill`:
+a later system of the same size starts with CHOLMOD (an audit factorises many systems of one
+graph)."""
+
+
+def forget_fill() -> None:
+    """Forget which system sizes filled in: each audit starts its own memo, so a later graph
+    of the same size (another file in the same process) is not sent to CHOLMOD for it."""
+    _BIG_FILL.clear()
 
 
 def _may_switch(k: int | None) -> bool:
     """Whether a QDLDL factorisation may move to CHOLMOD: 2D graphs under ``auto`` with cvxopt
     installed (3D graphs are CHOLMOD's from the start)."""
-    want = os.environ.get(SOLVER_ENV, "auto").strip().lower() or "auto"
-    return k == 3 and want == "auto" and cholmod_available()
+    return k == 3 and _solver_wanted() == "auto" and cholmod_available()
 
 
 class Factor:
@@ -431,7 +453,7 @@ class Factor:
                 return self._to_ldlt(T)
         q = _Qdldl(T)
         if _may_switch(self.k):
-            fill = int(q._f.factors()[0].nnz)
+            fill = int(q.factors()[0].nnz)
             if fill > FILL_SWITCH:
                 log.info("QDLDL's factor holds %d nonzeros: CHOLMOD factorises this system", fill)
                 _BIG_FILL[T.shape[0]] = True
