@@ -649,6 +649,40 @@ def verify_against_map(result: LoopAudit) -> None:
     # of the verified loops, all of them in it)
     solved_maps: dict[bytes, tuple[F, dict[str, float]]] = {}
 
+    def solve_round(r: int, edges: NDArray[np.bool_], P: F, dropped: bool,
+                    factored: list[Structure]) -> tuple[F, dict[str, float]]:
+        """The map of round r's ``edges``, from the map before it (``P``); ``dropped``: this
+        round's map left out loops the one before it held."""
+        if r == 1:
+            # the first map from the chordal start of its edges, and from the odometry
+            # chain only where that solve did not converge (the lower cost is kept). The
+            # chain start was 6.0 m from the optimum on intel after 50 iterations; over the
+            # 27 benchmark configurations of M3500, intel and CSAIL (seed 1) the chordal
+            # start reached the same minimum as the chain's or one 10-200x lower, and in
+            # fewer iterations (docs/loops.md)
+            P_warm, st_warm = solve(g, edges, chordal_init(g, edges, P), tol=1e-6,
+                                    keep=factored)
+            if not st_warm.get("converged", 0.0):
+                P_o, st_o = solve(g, edges, P, tol=1e-6, keep=factored)
+                if st_o["cost"] < st_warm["cost"]:
+                    P_warm, st_warm = P_o, st_o
+            return P_warm, st_warm
+        P_warm, st_warm = solve(g, edges, P, tol=1e-6, keep=factored)
+        if dropped:
+            # also from the chordal start of this round's edges: the loops this round
+            # dropped had bent the map before it, and LM from there can stop at a minimum
+            # of their basin (sphere2500 with random false loops: 9 081 from the map that
+            # held 27 false loops, 712 from the chordal start) or run out of iterations
+            # still inside it (intel with 50 % grouped false loops, seeds 2 and 3: the
+            # screened-out groups passed again against the bent map and 48 and 24 false
+            # loops were kept). Two minima are told apart by cost beyond the solver's own
+            # precision (RESTART_GAIN); a round that only adds verified loops starts from
+            # the map before it.
+            P_c, st_c = solve(g, edges, chordal_init(g, edges, P), tol=1e-6, keep=factored)
+            if st_c["cost"] < st_warm["cost"] * (1 - RESTART_GAIN):
+                P_warm, st_warm = P_c, st_c
+        return P_warm, st_warm
+
     def run_rounds(in_map: NDArray[np.bool_], P: F, first: int
                    ) -> tuple[NDArray[np.bool_], F, dict[str, F], int]:
         res: dict[str, F] = {}
@@ -671,37 +705,9 @@ def verify_against_map(result: LoopAudit) -> None:
             factored: list[Structure] = []
             if memo is not None:
                 P, st = memo
-            elif r == 1:
-                # the first map from the chordal start of its edges, and from the odometry
-                # chain only where that solve did not converge (the lower cost is kept). The
-                # chain start was 6.0 m from the optimum on intel after 50 iterations; over the
-                # 27 benchmark configurations of M3500, intel and CSAIL (seed 1) the chordal
-                # start reached the same minimum as the chain's or one 10-200x lower, and in
-                # fewer iterations (docs/loops.md)
-                P_warm, st_warm = solve(g, edges, chordal_init(g, edges, P), tol=1e-6,
-                                        keep=factored)
-                if not st_warm.get("converged", 0.0):
-                    P_o, st_o = solve(g, edges, P, tol=1e-6, keep=factored)
-                    if st_o["cost"] < st_warm["cost"]:
-                        P_warm, st_warm = P_o, st_o
             else:
-                P_warm, st_warm = solve(g, edges, P, tol=1e-6, keep=factored)
-            if memo is None and r > 1 and prev is not None and (prev & ~in_map).any():
-                # also from the chordal start of this round's edges: the loops this round
-                # dropped had bent the map before it, and LM from there can stop at a minimum
-                # of their basin (sphere2500 with random false loops: 9 081 from the map that
-                # held 27 false loops, 712 from the chordal start) or run out of iterations
-                # still inside it (intel with 50 % grouped false loops, seeds 2 and 3: the
-                # screened-out groups passed again against the bent map and 48 and 24 false
-                # loops were kept). Two minima are told apart by cost beyond the solver's own
-                # precision (RESTART_GAIN); a round that only adds verified loops starts from
-                # the map before it.
-                P_c, st_c = solve(g, edges, chordal_init(g, edges, P), tol=1e-6,
-                                 keep=factored)
-                if st_c["cost"] < st_warm["cost"] * (1 - RESTART_GAIN):
-                    P_warm, st_warm = P_c, st_c
-            if memo is None:
-                P, st = P_warm, st_warm
+                P, st = solve_round(r, edges, P, prev is not None and bool((prev & ~in_map).any()),
+                                    factored)
                 solved_maps[states[-1]] = (P, st)
             if st.get("converged", 0.0) and not converged_once:
                 converged_once = True
