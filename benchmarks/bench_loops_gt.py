@@ -30,6 +30,7 @@ Fetch the data first: python benchmarks/fetch_loops_data.py (or --local DIR with
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import sys
 import time
@@ -98,6 +99,15 @@ def map_of(graph: PoseGraph, edges: np.ndarray, chain_P: np.ndarray) -> np.ndarr
     return P
 
 
+def edges_key(graph: PoseGraph, edges: np.ndarray) -> bytes:
+    """A digest of the claims of ``edges`` (a mask): two graphs whose selected edges claim the
+    same have the same map."""
+    h = hashlib.sha256()
+    for a in (graph.src[edges], graph.dst[edges], graph.Z[edges], graph.info[edges]):
+        h.update(np.ascontiguousarray(a).tobytes())
+    return h.digest()
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     common_args(ap)
@@ -126,6 +136,9 @@ def main() -> int:
         odo = clean.odometry_mask()
         chain_P = build_chain(clean, odo).P
         P_odo = chain_P
+        # the map of every true loop changes only where an injected loop lands on a true
+        # revisit (within the lines), so it is solved once per distinct set of true claims
+        true_maps: dict[bytes, float] = {}
         for kind in kinds:
             for frac in fracs:
                 if frac == 0.0 and kind != kinds[0]:
@@ -146,7 +159,10 @@ def main() -> int:
                 true_edges = g.odometry_mask().copy()
                 true_edges[edge[~fl]] = True
                 a_kept = ate(map_of(g, kept, chain_P), G[g.ids])
-                a_true = ate(map_of(g, true_edges, chain_P), G[g.ids])
+                key = edges_key(g, true_edges)
+                if key not in true_maps:
+                    true_maps[key] = ate(map_of(g, true_edges, chain_P), G[g.ids])
+                a_true = true_maps[key]
                 a_odo = ate(P_odo, G[clean.ids])
                 row = {"graph": entry["name"], "kind": "published" if frac == 0.0 else kind,
                        "fraction": frac, "loops": len(t), "false": int(fl.sum()),
