@@ -1877,3 +1877,51 @@ def test_a_2d_system_whose_factor_fills_in_moves_to_cholmod(monkeypatch) -> None
     monkeypatch.setattr(S, "FILL_SWITCH", nnz - 1)
     monkeypatch.setenv(S.SOLVER_ENV, "qdldl")
     assert Factor(H, 3).backend == "qdldl"
+
+
+def _three_laps(seed: int, false_off_m: float) -> object:
+    """Three laps of a 100-pose circle (1 m steps): odometry with σ 0.01 per axis, stated
+    exactly; 25 loops from the second lap to the first and 11 from the third to the first,
+    measured to σ 0.002 while the file states 0.05 (loops far more precise than stated, so
+    the loops in the map read a variance factor well under 1); and one false loop 47 -> 247,
+    ``false_off_m`` off the truth along the first pose's x axis."""
+    from frontdiag.loops import lie
+    from frontdiag.loops.graph import PoseGraph
+
+    rng = np.random.default_rng(seed)
+    lap = lie.se2(np.full(100, 1.0), np.zeros(100), np.full(100, 2 * np.pi / 100))
+    P = lie.prefix_products(np.concatenate([lap, lap, lap])[:-1])
+    n = P.shape[0]
+    Zo = lie.inv(P[:-1]) @ P[1:] @ lie.exp(rng.normal(0, 0.01, (n - 1, 3)), 2)
+    pairs = ([(i, i + 100) for i in range(0, 100, 4)] + [(i, i + 200) for i in range(2, 90, 8)]
+             + [(47, 247)])
+    a, b = (np.array(c) for c in zip(*pairs, strict=True))
+    Zl = lie.inv(P[a]) @ P[b] @ lie.exp(rng.normal(0, 0.002, (len(pairs), 3)), 2)
+    Zl[-1] = Zl[-1] @ lie.se2(np.array([false_off_m]), np.zeros(1), np.zeros(1))[0]
+    src, dst = np.concatenate([np.arange(n - 1), a]), np.concatenate([np.arange(1, n), b])
+    info = np.concatenate([np.tile(np.eye(3) / 0.01**2, (n - 1, 1, 1)),
+                           np.tile(np.eye(3) / 0.05**2, (len(pairs), 1, 1))])
+    return PoseGraph(dim=2, ids=np.arange(n), src=src, dst=dst, Z=np.concatenate([Zo, Zl]),
+                     info=info, line=np.zeros(src.size, np.int64),
+                     flipped=np.zeros(src.size, bool))
+
+
+def test_the_maps_part_of_a_test_is_read_on_its_chains_scale(tmp_path: Path) -> None:
+    """Loops far more precise than stated make σ0² small (0.155 here), and applied to the
+    map's covariance between far poses it makes the odometry between them as stiff: the
+    third lap's true loops to the first, whose chains happen to read 3.7x their stated
+    scale in this realisation, are refused, 10 of 11. Read on the chains' scale (the median
+    χ² of the map's loops against their odometry chains, 3.73 here), they are all kept, and
+    a loop 1 m off the truth over the same span is still refused."""
+    g = _three_laps(seed=1, false_off_m=1.0)
+    t = audit(g).table
+    false = (t["i"] == 47).to_numpy() & (t["j"] == 247).to_numpy()
+    assert (t.loc[~false, "verdict"] == "ok").all()
+    assert (t.loc[false, "verdict"] == "fail").all()
+    s0, ms = float(t["variance_factor"].iloc[0]), float(t["map_scale"].iloc[0])
+    assert ms > 10 * s0  # the chains' scale, not σ0², for the map's part
+    assert "the odometry on its chains' scale" in " ".join(t["reason"])
+    off = audit(g, _rules_switched_off(tmp_path, "map_scale")).table
+    long_true = ((off["j"] - off["i"]) > 150).to_numpy() & ~false
+    assert (off.loc[long_true, "verdict"] == "ok").sum() <= 2
+    assert (off["map_scale"] == off["variance_factor"]).all()

@@ -86,7 +86,10 @@ def explain_loop(result: LoopAudit, row: int) -> str:
     if "map_chi2" in result.table.columns and np.isfinite(t.get("map_chi2", np.nan)):
         fold = t.get("map_fold_m", np.nan)
         lines.append(f"against the map of the verified loops: residual {t['map_residual_m']:.3f} m, "
-                     f"χ² {t['map_chi2']:.4g} (σ0² = {t.get('variance_factor', np.nan):.3g})"
+                     f"χ² {t['map_chi2']:.4g} (σ0² = {t.get('variance_factor', np.nan):.3g}"
+                     + (f"; the odometry on its chains' scale, {t['map_scale']:.3g}"
+                        if t.get("map_scale", np.nan) > t.get("variance_factor", np.nan)
+                        else "") + ")"
                      + (f"; believing it moves the map by {fold:.3f} m" if np.isfinite(fold)
                         else ""))
     if t["rule"]:

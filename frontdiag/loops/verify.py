@@ -40,6 +40,15 @@ sample covariance Ŝ of K draws (mean known to be zero), ``T² = eᵀŜ⁻¹e`` 
 scale (published graphs store √Ω, or invented weights); the variance factor ``σ0²``, the median
 T² of the loops in the map over the median of χ²_k, rescales them (a robust a-posteriori
 variance factor, robust to contamination below one half).
+
+Two scales (FD-LOP-003's ``map_scale``). σ0² is read on the loops in the map, whose residuals
+are set by loops beside each other and the short stretches between them; the map between far
+poses is the long odometry between them. Where the odometry's error grows with length faster
+than its stated covariance, the chains read a larger scale than σ0² (:func:`chain_scales`: the
+median χ² of the map's loops no longer than the tested one against their odometry chains),
+and one factor would make the long odometry far too stiff. So where that scale s is larger,
+each loop is read with the odometry's draws scaled by √(s/σ0²): against the covariance of a
+map whose odometry is that much noisier, relative to its loops, than stated.
 """
 
 from __future__ import annotations
@@ -165,6 +174,47 @@ def map_system(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
     return MapSystem(lin_all, sel, lin, Factor(H, k))
 
 
+def chain_scales(result: LoopAudit, in_map: NDArray[np.bool_]) -> F:
+    """Per loop: the scale of the odometry over stretches no longer than the loop's own, read
+    on the map's loops: the median χ² of those of them whose span (poses between their ends)
+    is at most the loop's, against their odometry chains (the chain test's, before any
+    optimisation), over χ²_k's median, floored as σ0² is; NaN where fewer than
+    MIN_VARIANCE_LOOPS of the map's loops are that short, or where FD-LOP-003's
+    ``map_scale`` is off.
+
+    σ0² reads the loops in the map by their residuals in it, and those residuals are set by
+    the loops beside each other and the short stretches between them (the loops of one revisit
+    agree to centimetres). A loop is tested against the map's covariance between its poses as
+    well, and where they are far apart that is the long odometry between them, whose scale σ0²
+    does not read: where the odometry's error grows faster with length than its stated
+    covariance, σ0² is far smaller than the chains' (KITTI 05, 2D: 0.079 against 2.3) and
+    would refuse the true loops that close the largest drift. Read only on chains no longer
+    than the loop's, a loop is never given more room than stretches of its length have shown
+    (intel's chains read 0.24 over its shortest third of loops and 2.3 over its longest: one
+    scale from all of them let false loops 30 poses long through). The loops in the map are
+    the verified ones, so their chains are not read through false loops; a median, so up to
+    half of them may be false."""
+    t = result.table
+    n = len(t)
+    out = np.full(n, np.nan)
+    r3 = result.rules.by_statistic("map")
+    if not ("map_scale" in r3.params and bool(r3.param("map_scale"))):
+        return out
+    chi = t["chi2"].to_numpy(dtype=float)
+    span = np.abs(t["span"].to_numpy())
+    use = in_map & np.isfinite(chi)
+    if use.sum() < MIN_VARIANCE_LOOPS:
+        return out
+    order = np.argsort(span[use], kind="stable")
+    s_span, s_chi = span[use][order], chi[use][order]
+    # the median of the map's loops up to each span: a running median over the sorted chains
+    cnt = np.searchsorted(s_span, span, side="right")
+    ref = float(chi2_dist.ppf(0.5, result.graph.k))
+    for c in np.unique(cnt[cnt >= MIN_VARIANCE_LOOPS]):
+        out[cnt == c] = max(float(np.median(s_chi[:c])) / ref, 1e-12)
+    return out
+
+
 def map_test(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
              system: MapSystem | None = None) -> dict[str, F]:
     """Residual of every loop against poses P, and its T² / p-value (see the module doc), from
@@ -196,11 +246,33 @@ def map_test(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
     mine = T2[in_map]
     sigma0_sq = float(np.median(mine) / ref) if mine.size >= MIN_VARIANCE_LOOPS else 1.0
     sigma0_sq = max(sigma0_sq, 1e-12)
+    d = g.dim
+    map_var_file = np.einsum("mis,mis->m", d_rel[:, :d], d_rel[:, :d]) / N_DRAWS
+    s_chain = chain_scales(result, in_map) if mine.size >= MIN_VARIANCE_LOOPS \
+        else np.full(loops.size, np.nan)
+    rho = np.where(np.isfinite(s_chain), np.maximum(s_chain / sigma0_sq, 1.0), 1.0)
+    if (rho > 1.0).any():
+        # the odometry's noise on the chains' scale, the loops' on σ0²: δx is linear in the
+        # noise, so the map's response with the odometry's draws scaled by √ρ is the unit
+        # response plus (√ρ − 1) times its response to the odometry's draws alone; every loop,
+        # in the map or out, is read against the covariance the map has when its odometry is
+        # ρ times as noisy as the file states relative to the loops
+        odo = result.odometry[sel]
+        ns_o = ns * odo[:, None, None]
+        b_o = scatter_add(g.src[sel], np.swapaxes(Wi, -1, -2) @ ns_o, n) \
+            + scatter_add(g.dst[sel], np.swapaxes(Wj, -1, -2) @ ns_o, n)
+        dx_o = -fac.solve(b_o.reshape(n * k, N_DRAWS)).reshape(n, k, N_DRAWS)
+        up = np.flatnonzero(rho > 1.0)
+        d_rel = d_rel.copy()
+        d_rel[up] += (np.sqrt(rho[up]) - 1.0)[:, None, None] * (
+            Jj[up] @ dx_o[bb[up]] + Ji[up] @ dx_o[a[up]])
+        draws = own + d_rel
+        S = np.einsum("mis,mjs->mij", draws, draws) / N_DRAWS
+        T2 = np.einsum("mi,mij,mj->m", e, np.linalg.inv(S), e)
     T2s = T2 / sigma0_sq
     Fstat = T2s * (N_DRAWS - k + 1) / (N_DRAWS * k)
     p = f_dist.sf(Fstat, k, N_DRAWS - k + 1)
     R = lie.inv(g.Z[loops]) @ lie.inv(P[a]) @ P[bb]
-    d = g.dim
     map_var = np.einsum("mis,mis->m", d_rel[:, :d], d_rel[:, :d]) / N_DRAWS
     # what believing the loop moves the map by, G e with G = C_d S⁻¹ (C_d the map's own
     # covariance between the loop's poses): outside the map S = Σ_L + C_d, the share of the
@@ -209,7 +281,9 @@ def map_test(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
     Cd = np.einsum("mis,mjs->mij", d_rel, d_rel) / N_DRAWS
     fold = np.einsum("mij,mj->mi", Cd @ np.linalg.inv(S), e)[:, :d]
     return {"map_sigma_m": np.sqrt(map_var * sigma0_sq), "T2": T2s, "p": p,
-            "sigma0_sq": np.full(loops.size, sigma0_sq), "e": e, "draws": draws,
+            "sigma0_sq": np.full(loops.size, sigma0_sq),
+            "chain_scale": s_chain, "map_scale": sigma0_sq * rho,
+            "map_sigma_file_m": np.sqrt(map_var_file), "e": e, "draws": draws,
             "fold_m": np.linalg.norm(fold, axis=1),
             "residual_m": np.linalg.norm(R[:, :g.dim, g.dim], axis=1),
             "residual_deg": np.degrees(lie.rotation_angle(R))}
@@ -240,7 +314,7 @@ def tested_map(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
 def _raw_sigma(res: dict[str, F]) -> F:
     """The map's σ between each loop's poses in the file's units (before the variance factor),
     comparable with the chain's σ."""
-    return res["map_sigma_m"] / np.sqrt(np.maximum(res["sigma0_sq"], 1e-12))
+    return res["map_sigma_file_m"]
 
 
 def _stiffer(res: dict[str, F], chain_sigma: F, share: float) -> NDArray[np.bool_]:
@@ -802,6 +876,7 @@ def verify_against_map(result: LoopAudit) -> None:
     t["map_chi2"] = res["T2"]
     t["map_p"] = res["p"]
     t["variance_factor"] = res["sigma0_sq"]
+    t["map_scale"] = res["map_scale"]
     t["map_sigma_m"] = res["map_sigma_m"]
     t["map_fold_m"] = res["fold_m"]
     t["in_map"] = in_map
@@ -819,7 +894,9 @@ def verify_against_map(result: LoopAudit) -> None:
     for i in range(len(t)):
         m = (f"against the map of {int(in_map.sum())} verified loops: residual "
              f"{res['residual_m'][i]:.2f} m / {res['residual_deg'][i]:.1f}°, "
-             f"χ²={res['T2'][i]:.3g} (σ0²={s0:.3g})")
+             f"χ²={res['T2'][i]:.3g} (σ0²={s0:.3g}"
+             + (f"; the odometry on its chains' scale, {res['map_scale'][i]:.3g}"
+                if res["map_scale"][i] > s0 else "") + ")")
         if stands[i] and not in_map[i]:
             reason[i] = (f"{reason[i]}; the map between its poses (σ {raw_sigma[i]:.2f} m) is "
                          f"no stiffer than its chain (σ {chain_sigma[i]:.2f} m), so the chain's "
