@@ -1925,3 +1925,15 @@ def test_the_maps_part_of_a_test_is_read_on_its_chains_scale(tmp_path: Path) -> 
     long_true = ((off["j"] - off["i"]) > 150).to_numpy() & ~false
     assert (off.loc[long_true, "verdict"] == "ok").sum() <= 2
     assert (off["map_scale"] == off["variance_factor"]).all()
+
+
+def test_the_running_median_is_the_median_of_every_prefix() -> None:
+    """chain_scales reads, for every loop, the median of the map's loops no longer than it:
+    the running median by two heaps equals numpy's median of each prefix, ties and even
+    counts included."""
+    from frontdiag.loops.verify import _running_median
+
+    rng = np.random.default_rng(0)
+    for x in (rng.exponential(size=257), np.repeat(rng.normal(size=20), 3), np.ones(4),
+              np.array([3.0])):
+        assert np.allclose(_running_median(x), [np.median(x[:c + 1]) for c in range(x.size)])
