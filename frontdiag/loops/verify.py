@@ -251,12 +251,16 @@ def map_test(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
     e_all = lin_all.e
     drawn = edge_draws(result)
     noise = drawn.edge
-    # Aᵀ n for the map's edges
-    Wi, Wj = lin.U @ lin.Je_i, lin.U @ lin.Je_j
+    # δx = −H⁻¹Aᵀn for the map's edges' draws n
+    WiT = np.swapaxes(lin.U @ lin.Je_i, -1, -2)
+    WjT = np.swapaxes(lin.U @ lin.Je_j, -1, -2)
     ns = noise[sel]
-    b = scatter_add(g.src[sel], np.swapaxes(Wi, -1, -2) @ ns, n) \
-        + scatter_add(g.dst[sel], np.swapaxes(Wj, -1, -2) @ ns, n)
-    dx = -fac.solve(b.reshape(n * k, N_DRAWS)).reshape(n, k, N_DRAWS)
+
+    def response(draws_: F) -> F:
+        b = scatter_add(g.src[sel], WiT @ draws_, n) + scatter_add(g.dst[sel], WjT @ draws_, n)
+        return -fac.solve(b.reshape(n * k, N_DRAWS)).reshape(n, k, N_DRAWS)
+
+    dx = response(ns)
     a, bb = g.src[loops], g.dst[loops]
     Ji, Jj = lin_all.Je_i[loops], lin_all.Je_j[loops]
     d_rel = Jj @ dx[bb] + Ji @ dx[a]
@@ -280,11 +284,7 @@ def map_test(result: LoopAudit, P: F, in_map: NDArray[np.bool_],
         # response plus (√ρ − 1) times its response to the odometry's draws alone; every loop,
         # in the map or out, is read against the covariance the map has when its odometry is
         # ρ times as noisy as the file states relative to the loops
-        odo = result.odometry[sel]
-        ns_o = ns * odo[:, None, None]
-        b_o = scatter_add(g.src[sel], np.swapaxes(Wi, -1, -2) @ ns_o, n) \
-            + scatter_add(g.dst[sel], np.swapaxes(Wj, -1, -2) @ ns_o, n)
-        dx_o = -fac.solve(b_o.reshape(n * k, N_DRAWS)).reshape(n, k, N_DRAWS)
+        dx_o = response(ns * result.odometry[sel][:, None, None])
         up = np.flatnonzero(rho > 1.0)
         d_rel = d_rel.copy()
         d_rel[up] += (np.sqrt(rho[up]) - 1.0)[:, None, None] * (
