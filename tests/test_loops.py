@@ -1079,8 +1079,9 @@ def test_a_consistent_group_of_false_loops_in_the_first_map_is_screened_out(
         r"its pair-test group \(5 loops\) was taken out of the first map").all()
     assert (on.loc[~is_f, "verdict"] == "ok").all()
     assert not on.loc[~is_f, "reason"].str.contains("taken out").any()
-    assert not any("not screened" in n for n in on_audit.notes)
-    # over its budget the screen is skipped, and said so: 2 groups x 240 poses x 9 = 4320
+    assert not any("screen_budget" in n for n in on_audit.notes)
+    # over its budget only the pass beside the group holding half the map (clusters 0 and 30,
+    # 10 of the 20 loops) runs, and the notes say so: 2 groups x 240 poses x 9 = 4320
     from frontdiag.loops.rules import load_loop_rules
 
     text = (tmp_path / "no_screen_groups_run_gap.toml").read_text()
@@ -1088,10 +1089,59 @@ def test_a_consistent_group_of_false_loops_in_the_first_map_is_screened_out(
     (tmp_path / "small.toml").write_text(text.replace(
         "screen_budget = { value = 500000,", "screen_budget = { value = 2000,").replace(
         "screen_groups = { value = false,", "screen_groups = { value = true,"))
-    skipped = audit(g, load_loop_rules(tmp_path / "small.toml"))
-    pd.testing.assert_series_equal(skipped.table["verdict"], off["verdict"])
-    assert any("not screened (2 to test" in n and "4.32e+03 against" in n
-               for n in skipped.notes)
+    together = audit(g, load_loop_rules(tmp_path / "small.toml"))
+    pd.testing.assert_series_equal(together.table["verdict"], on["verdict"])
+    assert together.table.loc[is_f, "reason"].str.contains(
+        r"its pair-test group \(5 loops\) was taken out of the first map").all()
+    assert any("2 pair-test groups were over FD-LOP-003's screen_budget" in n
+               and "4.32e+03 against" in n and "1 of them was refuted" in n
+               for n in together.notes)
+
+
+def test_groups_beside_one_holding_half_the_first_map_are_tested_against_its_map(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Two laps of a walk whose file states covariances 100x too loose, with 25 random false
+    loops (50 %, seed 3): no chain can test a loop, so the first map is seeded with the pair
+    test's groups, one of them holding most of its loops and beside it small groups of false
+    loops consistent by chance. Together the small groups bend the map: screened one group at
+    a time (the linearised test, then a re-solve without each suspect) they all pass, and 24 of
+    the 25 false loops are kept. Every group but the large one leaves the first map together,
+    is tested against the map of the rest, and is refuted there; no true loop is lost. The
+    same when the groups are over screen_budget, where only this pass runs."""
+    import frontdiag.loops.verify as V
+    from frontdiag.loops.inject import inject_false_loops
+    from frontdiag.loops.rules import default_loop_rules_file, load_loop_rules
+
+    g, false = inject_false_loops(_two_lap_walk(0.1, seed=3), 0.5, "random", seed=3)
+
+    def counts(res):  # type: ignore[no-untyped-def]
+        t = res.table
+        fl = false[t["edge"].to_numpy()]
+        ok = (t["verdict"] == "ok").to_numpy()
+        return int(ok[fl].sum()), int((~ok[~fl]).sum()), fl
+
+    on = audit(g)
+    t = on.table
+    kept_false, lost_true, fl = counts(on)
+    seeded = t["group_size"] >= 2
+    # the premise: no chain has power, and one group holds over half the seeded loops
+    fold_m = float(on.rules.by_statistic("untestable").param("fold_m"))
+    assert (t["chain_sigma_m"] > fold_m).all()
+    assert t["group_size"].max() > 0.5 * seeded.sum()
+    assert (kept_false, lost_true) == (0, 0)
+    taken = t["reason"].str.contains("was taken out of the first map").to_numpy()
+    assert taken[fl].sum() >= 5 and not taken[~fl].any()
+    budget = tmp_path / "small.toml"
+    budget.write_text(default_loop_rules_file().read_text().replace(
+        "screen_budget = { value = 500000,", "screen_budget = { value = 100,"))
+    together = audit(g, load_loop_rules(budget))
+    assert any("were refuted against the map of the one group holding half" in n
+               for n in together.notes)
+    pd.testing.assert_series_equal(together.table["verdict"], t["verdict"])
+    # without the first pass against the large group's map
+    monkeypatch.setattr(V, "_screen_beside_dominant",
+                        lambda result, P, in_map, p_alarm, gids: (in_map.copy(), P, {}, 0))
+    assert counts(audit(g))[0] >= 20
 
 
 def test_loop_runs_link_loops_whose_two_ends_are_both_near(tmp_path: Path) -> None:
@@ -1149,7 +1199,9 @@ def test_the_group_screen_re_solves_only_the_groups_its_linearised_test_suspects
     map, so its linearised leave-group-out test and the true group's at 94-98 (refuted beside
     it) both read p < PRE_P and both are re-solved. Once F has left, the true group's
     linearised test passes and no map is re-solved for it again; the verdicts are those of the
-    full screen."""
+    full screen. The clusters at 0 and 30 form one group of 10, half the first map, and the
+    screen's first pass tests the other two against its map and decides both with one solve;
+    it is switched off first, to test the passes after it."""
     import frontdiag.loops.verify as V
 
     lap = 120
@@ -1164,7 +1216,12 @@ def test_the_group_screen_re_solves_only_the_groups_its_linearised_test_suspects
         return real(result, P, in_map, mine)
 
     monkeypatch.setattr(V, "_leave_out", leave_out)
+    beside = audit(g).table
+    assert solved == []  # decided by the first pass against the group of 10
+    monkeypatch.setattr(V, "_screen_beside_dominant",
+                        lambda result, P, in_map, p_alarm, gids: (in_map.copy(), P, {}, 0))
     t = audit(g).table
+    pd.testing.assert_series_equal(beside["verdict"], t["verdict"])
     assert sorted(solved) == [60, 94]  # each re-solved once, in the first pass
     is_f = t["i"].between(60, 69).to_numpy()
     assert (t.loc[is_f, "verdict"] == "fail").all()
